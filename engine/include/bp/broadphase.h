@@ -1,0 +1,84 @@
+// bp::Broadphase: the one interface every broadphase of the library implements.
+//
+// Insert, Update and Erase are buffered and validated at call time against the state the
+// object will have at the next Query (the last query plus the calls buffered since). Query applies
+// everything buffered and reports, through the sink, exactly the pairs whose overlap status
+// changed since the previous Query: Collide(a, b) for pairs that overlap now and did not then,
+// Uncollide(a, b) for the reverse. Erasing an object uncollides all its pairs. Erasing and
+// re-inserting one key before a Query is an update: only real status changes are reported.
+//
+// Event order is canonical, the same for every engine and every thread count: all uncollides,
+// then all collides; each pair reported as (smaller key, larger key); pairs in increasing
+// (first, second) order.
+//
+// Thread safety: an engine is not thread-safe; callers serialise all calls on one instance.
+// Invariants (checked by Validate()):
+//  1. Between queries, the engine's overlap set equals the brute-force overlap set of its boxes.
+//  2. A refused call (non-ok Status) changes nothing.
+#pragma once
+
+#include <cstddef>
+#include <cstdint>
+#include <functional>
+#include <string>
+
+#include "bp/box.h"
+#include "bp/status.h"
+
+namespace bp {
+
+/// Receives the events of one Query.
+template <class Key>
+class EventSink {
+ public:
+  virtual ~EventSink() = default;
+  /// a and b overlap now and did not at the previous query (a < b).
+  virtual void Collide(const Key& a, const Key& b) = 0;
+  /// a and b overlapped at the previous query and do not now, or one was erased (a < b).
+  virtual void Uncollide(const Key& a, const Key& b) = 0;
+};
+
+/// Counters describing the engine and its last Query.
+struct Stats {
+  size_t objects = 0;           ///< live objects after the last query
+  size_t overlaps = 0;          ///< overlapping pairs after the last query
+  size_t inserts = 0;           ///< inserts applied by the last query
+  size_t updates = 0;           ///< updates applied by the last query
+  size_t erases = 0;            ///< erases applied by the last query
+  size_t collides = 0;          ///< collide events of the last query
+  size_t uncollides = 0;        ///< uncollide events of the last query
+  size_t swaps = 0;             ///< extremum swaps of the last query
+  size_t overlap_tests = 0;     ///< full box tests of the last query
+  bool global_sort = false;     ///< the last query sorted globally (not per moved object)
+  size_t chunks = 0;            ///< chunks over all axes (segmented lists only)
+};
+
+/// The interface of every broadphase: K axes, coordinates T, client keys Key.
+template <int K, Coordinate T, class Key = uint64_t>
+class Broadphase {
+ public:
+  using BoxType = Box<K, T>;
+  virtual ~Broadphase() = default;
+
+  /// Buffers the insertion of key with box. AlreadyExists if key is live; InvalidArgument if the
+  /// box is invalid.
+  virtual Status Insert(const Key& key, const BoxType& box) = 0;
+  /// Buffers a new box for key. NotFound if key is not live; InvalidArgument if the box is invalid.
+  virtual Status Update(const Key& key, const BoxType& box) = 0;
+  /// Buffers the erasure of key. NotFound if key is not live.
+  virtual Status Erase(const Key& key) = 0;
+  /// Applies all buffered calls and reports the overlap changes to sink in canonical order.
+  virtual void Query(EventSink<Key>& sink) = 0;
+  /// Calls f(a, b) with a < b for every overlapping pair as of the last query (any order).
+  virtual void ForEachOverlap(const std::function<void(const Key&, const Key&)>& f) const = 0;
+  /// Live objects as of the last query.
+  virtual size_t Size() const = 0;
+  /// Counters of the engine and of its last query.
+  virtual Stats GetStats() const = 0;
+  /// Checks every invariant of the internal structures (O(n log n) or worse); Internal on failure.
+  virtual Status Validate() const = 0;
+  /// A short name of the algorithm, e.g. "segmented_sap".
+  virtual std::string Name() const = 0;
+};
+
+}  // namespace bp
