@@ -115,7 +115,7 @@ class Scene {
 template <int K, Coordinate T>
 Box<K, T> ToBox(const SceneBox& box, double grid) {
   Box<K, T> out;
-  for (int a = 0; a < K; ++a) {
+  for (size_t a = 0; a < static_cast<size_t>(K); ++a) {
     if constexpr (std::is_floating_point_v<T>) {
       out.lo[a] = static_cast<T>(box.lo[a]);
       out.hi[a] = static_cast<T>(box.hi[a]);

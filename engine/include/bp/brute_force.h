@@ -1,0 +1,110 @@
+// bp::BruteForce: the reference oracle. No spatial structure: every inserted or moved box is
+// tested against every live box, O(n) per operation. Deliberately simple, so that it can be
+// trusted; every other engine is checked against it event by event.
+//
+// Thread safety: none (see bp/broadphase.h).
+// Invariants:
+//  1. live_[pos_[h]] == h for every live handle h; live_ holds each live handle once.
+//  2. The tracker's overlap set equals the overlapping pairs among live boxes.
+#pragma once
+
+#include <cstdint>
+#include <span>
+#include <string>
+#include <vector>
+
+#include "bp/box.h"
+#include "bp/broadphase.h"
+#include "bp/detail/keyed_engine.h"
+#include "bp/detail/pair_tracker.h"
+
+namespace bp {
+namespace detail {
+
+template <int K, Coordinate T>
+class BruteForceCore {
+ public:
+  static constexpr int kDim = K;
+  using Coord = T;
+  static constexpr const char* kName = "brute_force";
+  struct Options {};
+
+  explicit BruteForceCore(const Options& /*options*/ = Options()) {}
+
+  void Apply(std::span<const uint32_t> erases, std::span<const HandleBox<K, T>> updates,
+             std::span<const HandleBox<K, T>> inserts) {
+    tests_ = 0;
+    for (uint32_t h : erases) {
+      for (uint32_t other : live_) {
+        if (other != h) tracker_.Remove(h, other);
+      }
+      uint32_t pos = pos_[h];
+      live_[pos] = live_.back();
+      pos_[live_[pos]] = pos;
+      live_.pop_back();
+    }
+    for (const auto& [h, box] : updates) {
+      boxes_[h] = box;
+      Retest(h);
+    }
+    for (const auto& [h, box] : inserts) {
+      if (h >= boxes_.size()) {
+        boxes_.resize(h + 1);
+        pos_.resize(h + 1);
+      }
+      boxes_[h] = box;
+      pos_[h] = static_cast<uint32_t>(live_.size());
+      live_.push_back(h);
+      Retest(h);
+    }
+  }
+
+  PairTracker& tracker() { return tracker_; }
+  const PairTracker& tracker() const { return tracker_; }
+  void FillStats(Stats* out) const { out->overlap_tests = tests_; }
+
+  Status Validate() const {
+    size_t pairs = 0;
+    for (size_t i = 0; i < live_.size(); ++i) {
+      if (pos_[live_[i]] != i) return Status(StatusCode::kInternal, "brute_force: bad position");
+      for (size_t j = i + 1; j < live_.size(); ++j) {
+        bool overlap = Overlaps(boxes_[live_[i]], boxes_[live_[j]]);
+        if (overlap != tracker_.Contains(live_[i], live_[j])) {
+          return Status(StatusCode::kInternal, "brute_force: overlap set differs");
+        }
+        pairs += overlap ? 1 : 0;
+      }
+    }
+    if (pairs != tracker_.overlaps()) {
+      return Status(StatusCode::kInternal, "brute_force: stale pairs in the overlap set");
+    }
+    return Status::Ok();
+  }
+
+ private:
+  void Retest(uint32_t h) {
+    for (uint32_t other : live_) {
+      if (other == h) continue;
+      ++tests_;
+      if (Overlaps(boxes_[h], boxes_[other])) {
+        tracker_.Add(h, other);
+      } else {
+        tracker_.Remove(h, other);
+      }
+    }
+  }
+
+  std::vector<Box<K, T>> boxes_;
+  std::vector<uint32_t> pos_;
+  std::vector<uint32_t> live_;
+  PairTracker tracker_;
+  size_t tests_ = 0;
+};
+
+}  // namespace detail
+
+/// The brute-force oracle behind the common interface.
+template <int K, Coordinate T, class Key = uint64_t>
+using BruteForce = detail::KeyedEngine<detail::BruteForceCore<K, T>, Key>;
+
+}  // namespace bp

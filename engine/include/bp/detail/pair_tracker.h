@@ -1,0 +1,61 @@
+// bp::detail::PairTracker: the candidate set (pairs of dense handles that overlap now) and the
+// set of pairs whose status differs from the last query, from which events are drawn.
+//
+// Thread safety: none; owned by one engine.
+// Invariants:
+//  1. overlaps_ holds exactly the overlapping pairs of the current boxes (when a core is idle).
+//  2. A pair is in changed_ iff its membership in overlaps_ differs from that at the last Drain.
+#pragma once
+
+#include <cstdint>
+
+#include "bp/detail/flat_set.h"
+
+namespace bp::detail {
+
+/// Key of an unordered handle pair: min << 32 | max.
+inline uint64_t HandlePair(uint32_t a, uint32_t b) {
+  return a < b ? (uint64_t{a} << 32 | b) : (uint64_t{b} << 32 | a);
+}
+inline uint32_t PairFirst(uint64_t p) { return static_cast<uint32_t>(p >> 32); }
+inline uint32_t PairSecond(uint64_t p) { return static_cast<uint32_t>(p); }
+
+class PairTracker {
+ public:
+  /// Records that a and b overlap (idempotent).
+  void Add(uint32_t a, uint32_t b) {
+    uint64_t p = HandlePair(a, b);
+    if (overlaps_.Insert(p)) Toggle(p);
+  }
+  /// Records that a and b do not overlap (idempotent).
+  void Remove(uint32_t a, uint32_t b) {
+    uint64_t p = HandlePair(a, b);
+    if (overlaps_.Erase(p)) Toggle(p);
+  }
+  bool Contains(uint32_t a, uint32_t b) const { return overlaps_.Contains(HandlePair(a, b)); }
+
+  /// Calls f(a, b, overlapping_now) for every pair changed since the last drain, then forgets them.
+  template <class F>
+  void DrainChanges(F&& f) {
+    changed_.ForEach([&](uint64_t p) { f(PairFirst(p), PairSecond(p), overlaps_.Contains(p)); });
+    changed_.Clear();
+  }
+  /// Calls f(a, b) for every overlapping pair.
+  template <class F>
+  void ForEachOverlap(F&& f) const {
+    overlaps_.ForEach([&](uint64_t p) { f(PairFirst(p), PairSecond(p)); });
+  }
+  size_t overlaps() const { return overlaps_.size(); }
+  size_t pending_changes() const { return changed_.size(); }
+  const FlatSet<uint64_t>& overlap_set() const { return overlaps_; }
+
+ private:
+  void Toggle(uint64_t p) {
+    if (!changed_.Erase(p)) changed_.Insert(p);
+  }
+
+  FlatSet<uint64_t> overlaps_;
+  FlatSet<uint64_t> changed_;
+};
+
+}  // namespace bp::detail

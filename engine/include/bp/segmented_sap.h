@@ -1,0 +1,571 @@
+// bp::SegmentedSap: one sweep-and-prune instance over segmented interval lists (Tracy, Buss and
+// Woods, IEEE VR 2009, section 3.2.2) with event output (section 3.3).
+//
+// Per axis the sorted extrema live in chunks of `chunk_capacity` slots (a power of two, paper:
+// about 32), addressed through `order`, an array of chunk ids in list order that is binary
+// searched to place new extrema. An extremum's position is one integer: chunk id << shift | slot.
+// Insert and erase touch at most one chunk's worth of extrema per extremum; overlaps of an
+// inserted or erased object are found through its chunks and the checkpoint set of the chunk to
+// the left. Moved objects are re-sorted either locally (each moved extremum bubbles to its
+// place, swaps trigger overlap tests) or, when many moved, by one global insertion sort per axis.
+//
+// Checkpoints (axis 0 only): CP(c) holds the objects whose min lies in chunk c or to its left and
+// whose max lies to its right. During a local sort an object's min is moved before its max, so
+// min and max may cross for a moment (fast movers); the paper's R set absorbs that: per chunk, an
+// object is in CP(c) when its signed crossing count [min <= c] - [max <= c] is +1 and in R(c)
+// when it is -1. Between objects every R(c) is empty again.
+//
+// Thread safety: none (see bp/broadphase.h).
+// Invariants (checked by Validate):
+//  1. Every axis list is sorted by (value, min before max at equal value).
+//  2. pos[ref] addresses the extremum ref; every chunk in `order` holds 1..capacity extrema and
+//     knows its rank in `order`.
+//  3. CP(c) equals the recomputation above and every R(c) is empty.
+//  4. The tracker's overlap set equals the overlapping pairs of the live boxes.
+#pragma once
+
+#include <algorithm>
+#include <bit>
+#include <cstdint>
+#include <span>
+#include <string>
+#include <vector>
+
+#include "bp/box.h"
+#include "bp/broadphase.h"
+#include "bp/detail/assert.h"
+#include "bp/detail/flat_set.h"
+#include "bp/detail/keyed_engine.h"
+#include "bp/detail/pair_tracker.h"
+
+namespace bp {
+
+/// Tuning of SegmentedSap.
+struct SegmentedSapOptions {
+  /// Extremum slots per chunk; a power of two in [4, 4096]. The paper finds ~32 best.
+  uint32_t chunk_capacity = 32;
+  /// A query re-sorts globally when the moved objects exceed this fraction of the live ones,
+  /// and per moved object otherwise. Measured with bpbench (see README).
+  double global_sort_fraction = 0.25;
+};
+
+namespace detail {
+
+template <int K, Coordinate T>
+class SegmentedSapCore {
+ public:
+  static constexpr int kDim = K;
+  static constexpr size_t kAxes = static_cast<size_t>(K);
+  using Coord = T;
+  static constexpr const char* kName = "segmented_sap";
+  using Options = SegmentedSapOptions;
+
+  explicit SegmentedSapCore(const Options& options = Options()) : options_(options) {
+    uint32_t cap = std::clamp<uint32_t>(std::bit_ceil(options.chunk_capacity), 4, 4096);
+    cap_ = cap;
+    shift_ = static_cast<uint32_t>(std::countr_zero(cap));
+    options_.chunk_capacity = cap;
+  }
+
+  void Apply(std::span<const uint32_t> erases, std::span<const HandleBox<K, T>> updates,
+             std::span<const HandleBox<K, T>> inserts) {
+    swaps_ = 0;
+    tests_ = 0;
+    for (uint32_t h : erases) EraseObject(h);
+    global_ = !updates.empty() &&
+              static_cast<double>(updates.size()) > options_.global_sort_fraction *
+                                                        static_cast<double>(live_);
+    if (global_) {
+      GlobalUpdate(updates);
+    } else {
+      for (const auto& [h, box] : updates) LocalUpdate(h, box);
+    }
+    for (const auto& [h, box] : inserts) InsertObject(h, box);
+  }
+
+  PairTracker& tracker() { return tracker_; }
+  const PairTracker& tracker() const { return tracker_; }
+
+  void FillStats(Stats* out) const {
+    out->swaps = swaps_;
+    out->overlap_tests = tests_;
+    out->global_sort = global_;
+    out->chunks = 0;
+    for (const Axis& ax : axes_) out->chunks += ax.order.size();
+  }
+
+  Status Validate() const;
+
+  /// Options in force (chunk capacity rounded to a power of two).
+  const Options& options() const { return options_; }
+
+ private:
+  // One extremum: its value and ref = handle << 1 | is_max.
+  struct Ext {
+    T value;
+    uint32_t ref;
+  };
+  struct Chunk {
+    uint32_t count = 0;  // extrema held, 1..cap_ while in `order`
+    uint32_t rank = 0;   // index in `order`
+  };
+  struct Axis {
+    std::vector<Ext> items;       // chunk c owns items[c << shift_, (c << shift_) + cap_)
+    std::vector<Chunk> chunks;    // by chunk id
+    std::vector<uint32_t> order;  // chunk ids in list order
+    std::vector<uint32_t> free_chunks;
+    std::vector<uint32_t> pos;    // pos[ref]: position of extremum ref
+  };
+
+  // (value, min before max): the list order. Touching boxes overlap because a min sorts before a
+  // max of equal value.
+  static bool Less(const Ext& a, const Ext& b) {
+    return a.value < b.value || (!(b.value < a.value) && (a.ref & 1u) < (b.ref & 1u));
+  }
+  static bool IsMax(uint32_t ref) { return (ref & 1u) != 0; }
+  static uint32_t HandleOf(uint32_t ref) { return ref >> 1; }
+
+  uint32_t ChunkOf(uint32_t p) const { return p >> shift_; }
+  uint32_t SlotOf(uint32_t p) const { return p & (cap_ - 1); }
+  uint32_t Base(uint32_t c) const { return c << shift_; }
+
+  bool PrevPos(const Axis& ax, uint32_t p, uint32_t* out_q) const {
+    if (SlotOf(p) > 0) {
+      *out_q = p - 1;
+      return true;
+    }
+    uint32_t rank = ax.chunks[ChunkOf(p)].rank;
+    if (rank == 0) return false;
+    uint32_t c = ax.order[rank - 1];
+    *out_q = Base(c) + ax.chunks[c].count - 1;
+    return true;
+  }
+  bool NextPos(const Axis& ax, uint32_t p, uint32_t* out_q) const {
+    uint32_t c = ChunkOf(p);
+    if (SlotOf(p) + 1 < ax.chunks[c].count) {
+      *out_q = p + 1;
+      return true;
+    }
+    uint32_t rank = ax.chunks[c].rank;
+    if (rank + 1 >= ax.order.size()) return false;
+    *out_q = Base(ax.order[rank + 1]);
+    return true;
+  }
+
+  // ---- checkpoints (axis 0) ----
+  void CpAdd(uint32_t c, uint32_t h) {
+    auto& r = rsets_[c];
+    if (!r.empty()) {
+      auto it = std::find(r.begin(), r.end(), h);
+      if (it != r.end()) {
+        *it = r.back();
+        r.pop_back();
+        return;
+      }
+    }
+    bool inserted = checkpoints_[c].Insert(h);
+    BP_ASSERT(inserted);
+    (void)inserted;
+  }
+  void CpRemove(uint32_t c, uint32_t h) {
+    if (!checkpoints_[c].Erase(h)) rsets_[c].push_back(h);
+  }
+
+  // Swaps the adjacent extrema at pl (moving right) and pr (moving left) on axis a: updates
+  // positions, checkpoints and the candidate set.
+  void SwapAdjacent(size_t a, uint32_t pl, uint32_t pr) {
+    Axis& ax = axes_[a];
+    Ext x = ax.items[pl];
+    Ext y = ax.items[pr];
+    ax.items[pl] = y;
+    ax.items[pr] = x;
+    ax.pos[y.ref] = pl;
+    ax.pos[x.ref] = pr;
+    ++swaps_;
+    uint32_t hx = HandleOf(x.ref);
+    uint32_t hy = HandleOf(y.ref);
+    if (a == 0) {
+      uint32_t cl = ChunkOf(pl);
+      if (cl != ChunkOf(pr)) {
+        // x leaves chunk cl rightward, y enters it from the right.
+        if (IsMax(x.ref)) {
+          CpAdd(cl, hx);
+        } else {
+          CpRemove(cl, hx);
+        }
+        if (IsMax(y.ref)) {
+          CpRemove(cl, hy);
+        } else {
+          CpAdd(cl, hy);
+        }
+      }
+    }
+    if (hx == hy) return;
+    if (IsMax(x.ref) && !IsMax(y.ref)) {
+      // y's min moved before x's max: they may overlap now.
+      ++tests_;
+      if (Overlaps(boxes_[hx], boxes_[hy])) tracker_.Add(hx, hy);
+    } else if (!IsMax(x.ref) && IsMax(y.ref)) {
+      // y's max moved before x's min: separated on this axis.
+      tracker_.Remove(hx, hy);
+    }
+  }
+
+  // Moves the extremum at p to its place after its value changed.
+  void SortExtremum(size_t a, uint32_t p) {
+    Axis& ax = axes_[a];
+    uint32_t q = 0;
+    while (PrevPos(ax, p, &q) && Less(ax.items[p], ax.items[q])) {
+      SwapAdjacent(a, q, p);
+      p = q;
+    }
+    while (NextPos(ax, p, &q) && Less(ax.items[q], ax.items[p])) {
+      SwapAdjacent(a, p, q);
+      p = q;
+    }
+  }
+
+  void LocalUpdate(uint32_t h, const Box<K, T>& box) {
+    boxes_[h] = box;
+    for (size_t a = 0; a < kAxes; ++a) {
+      Axis& ax = axes_[a];
+      uint32_t p = ax.pos[2 * h];
+      ax.items[p].value = box.lo[a];
+      SortExtremum(a, p);
+      p = ax.pos[2 * h + 1];
+      ax.items[p].value = box.hi[a];
+      SortExtremum(a, p);
+    }
+  }
+
+  void GlobalUpdate(std::span<const HandleBox<K, T>> updates) {
+    for (const auto& [h, box] : updates) {
+      boxes_[h] = box;
+      for (size_t a = 0; a < kAxes; ++a) {
+        Axis& ax = axes_[a];
+        ax.items[ax.pos[2 * h]].value = box.lo[a];
+        ax.items[ax.pos[2 * h + 1]].value = box.hi[a];
+      }
+    }
+    for (size_t a = 0; a < kAxes; ++a) {
+      Axis& ax = axes_[a];
+      // Insertion sort in list order: each inverted pair swaps exactly once.
+      for (uint32_t c : ax.order) {
+        uint32_t base = Base(c);
+        uint32_t n = ax.chunks[c].count;
+        for (uint32_t i = 0; i < n; ++i) {
+          uint32_t p = base + i;
+          uint32_t q = 0;
+          while (PrevPos(ax, p, &q) && Less(ax.items[p], ax.items[q])) {
+            SwapAdjacent(a, q, p);
+            p = q;
+          }
+        }
+      }
+    }
+  }
+
+  // ---- chunks ----
+  uint32_t NewChunk(size_t a) {
+    Axis& ax = axes_[a];
+    uint32_t c = 0;
+    if (!ax.free_chunks.empty()) {
+      c = ax.free_chunks.back();
+      ax.free_chunks.pop_back();
+    } else {
+      c = static_cast<uint32_t>(ax.chunks.size());
+      ax.chunks.emplace_back();
+      ax.items.resize(static_cast<size_t>(c + 1) << shift_);
+      if (a == 0) {
+        checkpoints_.emplace_back();
+        rsets_.emplace_back();
+      }
+    }
+    ax.chunks[c].count = 0;
+    return c;
+  }
+
+  void Renumber(Axis& ax, size_t from) {
+    for (size_t r = from; r < ax.order.size(); ++r) ax.chunks[ax.order[r]].rank = static_cast<uint32_t>(r);
+  }
+
+  void MoveItems(Axis& ax, uint32_t from, uint32_t to, uint32_t n) {
+    for (uint32_t i = 0; i < n; ++i) {
+      ax.items[to + i] = ax.items[from + i];
+      ax.pos[ax.items[to + i].ref] = to + i;
+    }
+  }
+
+  // Splits the full chunk c: its upper half moves to a new chunk placed right after it.
+  void Split(size_t a, uint32_t c) {
+    uint32_t d = NewChunk(a);
+    Axis& ax = axes_[a];
+    uint32_t keep = ax.chunks[c].count / 2;
+    uint32_t moved = ax.chunks[c].count - keep;
+    MoveItems(ax, Base(c) + keep, Base(d), moved);
+    ax.chunks[c].count = keep;
+    ax.chunks[d].count = moved;
+    uint32_t rank = ax.chunks[c].rank;
+    ax.order.insert(ax.order.begin() + rank + 1, d);
+    Renumber(ax, rank + 1);
+    if (a == 0) {
+      BP_ASSERT(rsets_[c].empty());
+      // d inherits c's trailing edge; c's new edge is d's minus what d's extrema open or close.
+      checkpoints_[d] = checkpoints_[c];
+      FlatSet<uint32_t>& cp = checkpoints_[c];
+      for (uint32_t i = moved; i-- > 0;) {
+        uint32_t ref = ax.items[Base(d) + i].ref;
+        if (IsMax(ref)) {
+          cp.Insert(HandleOf(ref));
+        } else {
+          cp.Erase(HandleOf(ref));  // absent only for the half-inserted object
+        }
+      }
+    }
+  }
+
+  void RemoveChunk(size_t a, uint32_t c) {
+    Axis& ax = axes_[a];
+    uint32_t rank = ax.chunks[c].rank;
+    ax.order.erase(ax.order.begin() + rank);
+    Renumber(ax, rank);
+    ax.chunks[c].count = 0;
+    ax.free_chunks.push_back(c);
+    if (a == 0) {
+      checkpoints_[c].Clear();
+      rsets_[c].clear();
+    }
+  }
+
+  // Merges chunk c with a neighbour when both fit in half a chunk; the merged chunk keeps the
+  // checkpoints of the right one (its trailing edge).
+  void MaybeMerge(size_t a, uint32_t c) {
+    Axis& ax = axes_[a];
+    uint32_t rank = ax.chunks[c].rank;
+    uint32_t limit = cap_ / 2;
+    uint32_t left = c, right = c;
+    if (rank + 1 < ax.order.size() &&
+        ax.chunks[c].count + ax.chunks[ax.order[rank + 1]].count <= limit) {
+      right = ax.order[rank + 1];
+    } else if (rank > 0 && ax.chunks[c].count + ax.chunks[ax.order[rank - 1]].count <= limit) {
+      left = ax.order[rank - 1];
+    } else {
+      return;
+    }
+    MoveItems(ax, Base(right), Base(left) + ax.chunks[left].count, ax.chunks[right].count);
+    ax.chunks[left].count += ax.chunks[right].count;
+    if (a == 0) {
+      BP_ASSERT(rsets_[left].empty() && rsets_[right].empty());
+      std::swap(checkpoints_[left], checkpoints_[right]);
+    }
+    RemoveChunk(a, right);
+  }
+
+  void InsertExtremum(size_t a, Ext e) {
+    Axis& ax = axes_[a];
+    if (ax.order.empty()) {
+      uint32_t c = NewChunk(a);
+      ax.order.push_back(c);
+      ax.chunks[c].rank = 0;
+      ax.chunks[c].count = 1;
+      ax.items[Base(c)] = e;
+      ax.pos[e.ref] = Base(c);
+      return;
+    }
+    // The first chunk whose last extremum sorts after e, else the last chunk.
+    auto it = std::partition_point(ax.order.begin(), ax.order.end(), [&](uint32_t c) {
+      return !Less(e, ax.items[Base(c) + ax.chunks[c].count - 1]);
+    });
+    uint32_t c = it == ax.order.end() ? ax.order.back() : *it;
+    if (ax.chunks[c].count == cap_) {
+      Split(a, c);
+      uint32_t d = ax.order[ax.chunks[c].rank + 1];
+      if (!Less(e, ax.items[Base(c) + ax.chunks[c].count - 1])) c = d;
+    }
+    uint32_t base = Base(c);
+    uint32_t i = ax.chunks[c].count++;
+    while (i > 0 && Less(e, ax.items[base + i - 1])) {
+      ax.items[base + i] = ax.items[base + i - 1];
+      ax.pos[ax.items[base + i].ref] = base + i;
+      --i;
+      ++swaps_;
+    }
+    ax.items[base + i] = e;
+    ax.pos[e.ref] = base + i;
+  }
+
+  void RemoveExtremum(size_t a, uint32_t ref) {
+    Axis& ax = axes_[a];
+    uint32_t p = ax.pos[ref];
+    uint32_t c = ChunkOf(p);
+    uint32_t n = ax.chunks[c].count;
+    for (uint32_t i = SlotOf(p); i + 1 < n; ++i) {
+      ax.items[Base(c) + i] = ax.items[Base(c) + i + 1];
+      ax.pos[ax.items[Base(c) + i].ref] = Base(c) + i;
+      ++swaps_;
+    }
+    if (--ax.chunks[c].count == 0) {
+      RemoveChunk(a, c);
+    } else {
+      MaybeMerge(a, c);
+    }
+  }
+
+  // Calls f(b) once for every live object b != h whose axis-0 interval may overlap h's: the
+  // checkpoints of the chunk left of h's min, and every min from the start of h's min chunk up
+  // to h's max.
+  template <class F>
+  void ForEachAxis0Candidate(uint32_t h, F&& f) const {
+    const Axis& ax = axes_[0];
+    uint32_t pmax = ax.pos[2 * h + 1];
+    uint32_t rank = ax.chunks[ChunkOf(ax.pos[2 * h])].rank;
+    if (rank > 0) checkpoints_[ax.order[rank - 1]].ForEach(f);
+    for (;; ++rank) {
+      uint32_t c = ax.order[rank];
+      uint32_t base = Base(c);
+      for (uint32_t i = 0; i < ax.chunks[c].count; ++i) {
+        if (base + i == pmax) return;
+        uint32_t ref = ax.items[base + i].ref;
+        if (!IsMax(ref) && HandleOf(ref) != h) f(HandleOf(ref));
+      }
+    }
+  }
+
+  // Calls f(c) for the axis-0 chunks from h's min chunk (inclusive) to its max chunk (exclusive).
+  template <class F>
+  void ForEachSpannedChunk(uint32_t h, F&& f) const {
+    const Axis& ax = axes_[0];
+    uint32_t cmax = ChunkOf(ax.pos[2 * h + 1]);
+    for (uint32_t rank = ax.chunks[ChunkOf(ax.pos[2 * h])].rank; ax.order[rank] != cmax; ++rank) {
+      f(ax.order[rank]);
+    }
+  }
+
+  void InsertObject(uint32_t h, const Box<K, T>& box) {
+    if (h >= boxes_.size()) {
+      boxes_.resize(h + 1);
+      live_flag_.resize(h + 1, 0);
+      for (Axis& ax : axes_) ax.pos.resize(2 * (static_cast<size_t>(h) + 1));
+    }
+    BP_ASSERT(!live_flag_[h]);
+    boxes_[h] = box;
+    live_flag_[h] = 1;
+    ++live_;
+    for (size_t a = 0; a < kAxes; ++a) {
+      InsertExtremum(a, Ext{box.lo[a], 2 * h});
+      InsertExtremum(a, Ext{box.hi[a], 2 * h + 1});
+    }
+    ForEachSpannedChunk(h, [&](uint32_t c) { CpAdd(c, h); });
+    ForEachAxis0Candidate(h, [&](uint32_t b) {
+      ++tests_;
+      if (Overlaps(boxes_[h], boxes_[b])) tracker_.Add(h, b);
+    });
+  }
+
+  void EraseObject(uint32_t h) {
+    BP_ASSERT(h < live_flag_.size() && live_flag_[h]);
+    ForEachAxis0Candidate(h, [&](uint32_t b) { tracker_.Remove(h, b); });
+    ForEachSpannedChunk(h, [&](uint32_t c) { CpRemove(c, h); });
+    for (size_t a = 0; a < kAxes; ++a) {
+      RemoveExtremum(a, 2 * h + 1);
+      RemoveExtremum(a, 2 * h);
+    }
+    live_flag_[h] = 0;
+    --live_;
+  }
+
+  Options options_;
+  uint32_t cap_ = 32;
+  uint32_t shift_ = 5;
+  Axis axes_[kAxes];
+  std::vector<FlatSet<uint32_t>> checkpoints_;  // axis 0, by chunk id
+  std::vector<std::vector<uint32_t>> rsets_;    // axis 0, by chunk id; empty between objects
+  std::vector<Box<K, T>> boxes_;
+  std::vector<uint8_t> live_flag_;
+  size_t live_ = 0;
+  PairTracker tracker_;
+  size_t swaps_ = 0;
+  size_t tests_ = 0;
+  bool global_ = false;
+};
+
+template <int K, Coordinate T>
+Status SegmentedSapCore<K, T>::Validate() const {
+  auto fail = [](const std::string& what) {
+    return Status(StatusCode::kInternal, "segmented_sap: " + what);
+  };
+  std::vector<uint32_t> live;
+  for (size_t a = 0; a < kAxes; ++a) {
+    const Axis& ax = axes_[a];
+    size_t total = 0;
+    const Ext* prev = nullptr;
+    std::vector<uint8_t> open(live_flag_.size(), 0);
+    size_t open_count = 0;
+    for (size_t r = 0; r < ax.order.size(); ++r) {
+      uint32_t c = ax.order[r];
+      const Chunk& ch = ax.chunks[c];
+      if (ch.rank != r) return fail("chunk rank out of date on axis " + std::to_string(a));
+      if (ch.count == 0 || ch.count > cap_) return fail("chunk population out of range");
+      for (uint32_t i = 0; i < ch.count; ++i) {
+        uint32_t p = Base(c) + i;
+        const Ext& e = ax.items[p];
+        uint32_t h = HandleOf(e.ref);
+        if (h >= live_flag_.size() || !live_flag_[h]) return fail("extremum of a dead handle");
+        if (ax.pos[e.ref] != p) return fail("position table out of date");
+        T expect = IsMax(e.ref) ? boxes_[h].hi[a] : boxes_[h].lo[a];
+        if (!(e.value == expect)) {
+          return fail("extremum value differs from the box");
+        }
+        if (prev != nullptr && Less(e, *prev)) {
+          return fail("axis " + std::to_string(a) + " not sorted");
+        }
+        prev = &e;
+        ++total;
+        if (a == 0) {
+          if (IsMax(e.ref)) {
+            if (!open[h]) return fail("max before min");
+            open[h] = 0;
+            --open_count;
+          } else {
+            open[h] = 1;
+            ++open_count;
+            live.push_back(h);
+          }
+        }
+      }
+      if (a == 0) {
+        if (!rsets_[c].empty()) return fail("R set not empty between queries");
+        const FlatSet<uint32_t>& cp = checkpoints_[c];
+        if (cp.size() != open_count) return fail("checkpoint set size differs from recomputation");
+        bool ok = true;
+        cp.ForEach([&](uint32_t h) { ok = ok && h < open.size() && open[h]; });
+        if (!ok) return fail("checkpoint set differs from recomputation");
+      }
+    }
+    if (total != 2 * live_) return fail("extrema count differs from live objects");
+  }
+  // Candidate set against an independent sort-and-sweep over the boxes.
+  std::sort(live.begin(), live.end(), [&](uint32_t x, uint32_t y) {
+    return boxes_[x].lo[0] < boxes_[y].lo[0];
+  });
+  size_t pairs = 0;
+  for (size_t i = 0; i < live.size(); ++i) {
+    for (size_t j = i + 1; j < live.size() && !(boxes_[live[i]].hi[0] < boxes_[live[j]].lo[0]);
+         ++j) {
+      if (Overlaps(boxes_[live[i]], boxes_[live[j]])) {
+        ++pairs;
+        if (!tracker_.Contains(live[i], live[j])) return fail("overlapping pair missing");
+      }
+    }
+  }
+  if (pairs != tracker_.overlaps()) return fail("spurious pair in the candidate set");
+  return Status::Ok();
+}
+
+}  // namespace detail
+
+/// Sweep and prune over segmented interval lists, behind the common interface.
+template <int K, Coordinate T, class Key = uint64_t>
+using SegmentedSap = detail::KeyedEngine<detail::SegmentedSapCore<K, T>, Key>;
+
+}  // namespace bp

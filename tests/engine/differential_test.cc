@@ -1,0 +1,299 @@
+// The typed differential suite: every engine, 2-D and 3-D, float/double/int32 coordinates, driven
+// by seeded random operation sequences; every query's events must equal the model oracle's set
+// difference exactly (same pairs, same canonical order), and the engine's validators must pass.
+// Replay one seed with BP_TEST_SEED=<seed>.
+#include <gtest/gtest.h>
+
+#include <algorithm>
+#include <cstdint>
+#include <limits>
+#include <random>
+#include <set>
+#include <string>
+#include <vector>
+
+#include "test_support.h"
+
+namespace bp::test {
+namespace {
+
+// How a scenario draws its operations.
+struct Scenario {
+  const char* name;
+  int lattice;        // coordinates are integers in [-lattice, lattice]
+  int max_extent;     // box extents are in [0, max_extent]
+  int initial;        // objects inserted before the first query
+  int frames;         // queries after the first
+  int ops_per_frame;  // upper bound of random operations per frame
+};
+
+constexpr Scenario kScenarios[] = {
+    // Few distinct coordinates: equal values and exact touching everywhere.
+    {"dense_lattice", 12, 4, 60, 70, 30},
+    // Wider world, more objects, more motion.
+    {"sparse", 400, 30, 160, 50, 60},
+    // Few objects, many operations per frame: churn dominates.
+    {"churn_heavy", 40, 10, 20, 80, 40},
+};
+
+template <class Config>
+class DifferentialTest : public ::testing::Test {
+ protected:
+  static constexpr int K = Config::K;
+  using T = typename Config::T;
+  using BoxType = Box<K, T>;
+
+  void Run(const Scenario& sc, uint64_t seed) {
+    SCOPED_TRACE(std::string("engine=") + Config::Name() + " scenario=" + sc.name +
+                 " K=" + std::to_string(K) + " seed=" + std::to_string(seed) +
+                 " (replay with BP_TEST_SEED=" + std::to_string(seed) + ")");
+    sc_ = &sc;
+    rng_.seed(seed);
+    engine_ = Config::Create();
+    model_ = {};
+    next_key_ = 1;
+    erased_keys_.clear();
+    for (int i = 0; i < sc.initial; ++i) DoInsert(next_key_++, RandomBox());
+    Check(0);
+    for (int frame = 1; frame <= sc.frames && !HasFatalFailure() && !HasFailure(); ++frame) {
+      int ops = Below(5) == 0 ? 0 : static_cast<int>(Below(static_cast<uint64_t>(sc.ops_per_frame)));
+      for (int i = 0; i < ops; ++i) RandomOp();
+      Check(frame);
+    }
+  }
+
+ private:
+  uint64_t Below(uint64_t n) { return std::uniform_int_distribution<uint64_t>(0, n - 1)(rng_); }
+  int Coord() {
+    return static_cast<int>(Below(static_cast<uint64_t>(2 * sc_->lattice + 1))) - sc_->lattice;
+  }
+  BoxType RandomBox() {
+    BoxType b;
+    for (size_t a = 0; a < static_cast<size_t>(K); ++a) {
+      int lo = Coord();
+      int ext = static_cast<int>(Below(static_cast<uint64_t>(sc_->max_extent + 1)));
+      b.lo[a] = static_cast<T>(lo);
+      b.hi[a] = static_cast<T>(lo + ext);
+    }
+    return b;
+  }
+  BoxType Everything() {
+    BoxType b;
+    bool extreme = Below(2) == 0;
+    for (size_t a = 0; a < static_cast<size_t>(K); ++a) {
+      b.lo[a] = extreme ? std::numeric_limits<T>::lowest() : static_cast<T>(-2 * sc_->lattice);
+      b.hi[a] = extreme ? std::numeric_limits<T>::max()
+                        : static_cast<T>(2 * sc_->lattice + sc_->max_extent);
+    }
+    return b;
+  }
+  uint64_t RandomLiveKey() {
+    auto it = model_.boxes().begin();
+    std::advance(it, static_cast<long>(Below(model_.boxes().size())));
+    return it->first;
+  }
+
+  void DoInsert(uint64_t key, const BoxType& box) {
+    Status s = engine_->Insert(key, box);
+    ASSERT_TRUE(s.ok()) << s.ToString();
+    model_.boxes()[key] = box;
+  }
+  void DoUpdate(uint64_t key, const BoxType& box) {
+    Status s = engine_->Update(key, box);
+    ASSERT_TRUE(s.ok()) << s.ToString();
+    model_.boxes()[key] = box;
+  }
+  void DoErase(uint64_t key) {
+    Status s = engine_->Erase(key);
+    ASSERT_TRUE(s.ok()) << s.ToString();
+    model_.boxes().erase(key);
+    erased_keys_.push_back(key);
+  }
+
+  void RandomOp() {
+    bool empty = model_.boxes().empty();
+    switch (Below(14)) {
+      case 0:
+      case 1:  // insert a new key, or re-insert a key erased earlier
+        if (!erased_keys_.empty() && Below(3) == 0) {
+          uint64_t key = erased_keys_[Below(erased_keys_.size())];
+          if (!model_.boxes().count(key)) DoInsert(key, RandomBox());
+        } else {
+          DoInsert(next_key_++, RandomBox());
+        }
+        return;
+      case 2:  // erase
+        if (!empty) DoErase(RandomLiveKey());
+        return;
+      case 3:
+      case 4:
+      case 5:  // small move
+        if (!empty) {
+          uint64_t key = RandomLiveKey();
+          BoxType b = model_.boxes()[key];
+          for (size_t a = 0; a < static_cast<size_t>(K); ++a) {
+            T d = static_cast<T>(static_cast<int>(Below(5)) - 2);
+            if (b.lo[a] > static_cast<T>(-4 * sc_->lattice) &&
+                b.hi[a] < static_cast<T>(4 * sc_->lattice)) {
+              b.lo[a] = static_cast<T>(b.lo[a] + d);
+              b.hi[a] = static_cast<T>(b.hi[a] + d);
+            }
+          }
+          DoUpdate(key, b);
+        }
+        return;
+      case 6:  // teleport across the whole list
+        if (!empty) DoUpdate(RandomLiveKey(), RandomBox());
+        return;
+      case 7:  // shrink to a point
+        if (!empty) {
+          uint64_t key = RandomLiveKey();
+          BoxType b = model_.boxes()[key];
+          for (size_t a = 0; a < static_cast<size_t>(K); ++a) b.hi[a] = b.lo[a];
+          DoUpdate(key, b);
+        }
+        return;
+      case 8:  // grow over everything
+        if (!empty && Below(3) == 0) DoUpdate(RandomLiveKey(), Everything());
+        return;
+      case 9:  // erase and re-insert one key in the same frame
+        if (!empty) {
+          uint64_t key = RandomLiveKey();
+          BoxType b = Below(2) == 0 ? model_.boxes()[key] : RandomBox();
+          DoErase(key);
+          DoInsert(key, b);
+        }
+        return;
+      case 10: {  // insert, update, maybe erase a new key in one frame
+        uint64_t key = next_key_++;
+        DoInsert(key, RandomBox());
+        DoUpdate(key, RandomBox());
+        if (Below(2) == 0) DoErase(key);
+        return;
+      }
+      case 11:  // two updates of one key in one frame
+        if (!empty) {
+          uint64_t key = RandomLiveKey();
+          DoUpdate(key, RandomBox());
+          DoUpdate(key, RandomBox());
+        }
+        return;
+      case 12:  // bad calls are refused and change nothing
+        BadCalls();
+        return;
+      default:  // many objects onto one coordinate
+        if (!empty) {
+          uint64_t key = RandomLiveKey();
+          BoxType b = model_.boxes()[key];
+          for (size_t a = 0; a < static_cast<size_t>(K); ++a) {
+            b.lo[a] = static_cast<T>(0);
+            b.hi[a] = static_cast<T>(Below(2));
+          }
+          DoUpdate(key, b);
+        }
+        return;
+    }
+  }
+
+  void BadCalls() {
+    uint64_t unknown = next_key_ + 1000000;
+    EXPECT_EQ(engine_->Update(unknown, RandomBox()).code(), StatusCode::kNotFound);
+    EXPECT_EQ(engine_->Erase(unknown).code(), StatusCode::kNotFound);
+    if (!model_.boxes().empty()) {
+      uint64_t key = RandomLiveKey();
+      EXPECT_EQ(engine_->Insert(key, RandomBox()).code(), StatusCode::kAlreadyExists);
+      BoxType inverted = RandomBox();
+      inverted.lo[K - 1] = static_cast<T>(inverted.hi[K - 1] + 1);
+      EXPECT_EQ(engine_->Update(key, inverted).code(), StatusCode::kInvalidArgument);
+      if constexpr (std::is_floating_point_v<T>) {
+        BoxType nan = RandomBox();
+        nan.lo[0] = std::numeric_limits<T>::quiet_NaN();
+        EXPECT_EQ(engine_->Update(key, nan).code(), StatusCode::kInvalidArgument);
+        BoxType inf = RandomBox();
+        inf.hi[K - 1] = std::numeric_limits<T>::infinity();
+        EXPECT_EQ(engine_->Insert(next_key_ + 7, inf).code(), StatusCode::kInvalidArgument);
+      }
+    }
+    if (!erased_keys_.empty()) {
+      uint64_t key = erased_keys_.back();
+      if (!model_.boxes().count(key)) {
+        EXPECT_EQ(engine_->Erase(key).code(), StatusCode::kNotFound);
+      }
+    }
+  }
+
+  void Check(int frame) {
+    SCOPED_TRACE("frame " + std::to_string(frame));
+    RecordingSink<uint64_t> sink;
+    engine_->Query(sink);
+    std::vector<std::pair<uint64_t, uint64_t>> collides, uncollides;
+    model_.Query(&collides, &uncollides);
+    ASSERT_EQ(sink.uncollides, uncollides);
+    ASSERT_EQ(sink.collides, collides);
+    ASSERT_EQ(engine_->Size(), model_.boxes().size());
+    Stats stats = engine_->GetStats();
+    ASSERT_EQ(stats.overlaps, model_.last_pairs().size());
+    ASSERT_EQ(stats.collides, collides.size());
+    ASSERT_EQ(stats.uncollides, uncollides.size());
+    Status v = engine_->Validate();
+    ASSERT_TRUE(v.ok()) << v.ToString();
+    if (frame % 10 == 0) {
+      std::set<std::pair<uint64_t, uint64_t>> all;
+      engine_->ForEachOverlap([&](uint64_t a, uint64_t b) {
+        EXPECT_LT(a, b);
+        all.emplace(a, b);
+      });
+      ASSERT_EQ(all, model_.last_pairs());
+    }
+  }
+
+  const Scenario* sc_ = nullptr;
+  std::mt19937_64 rng_;
+  std::unique_ptr<Broadphase<K, T>> engine_;
+  ModelOracle<K, T> model_;
+  uint64_t next_key_ = 1;
+  std::vector<uint64_t> erased_keys_;
+};
+
+template <class Make>
+using AllShapes =
+    ::testing::Types<EngineConfig<2, float, Make>, EngineConfig<3, float, Make>,
+                     EngineConfig<2, double, Make>, EngineConfig<3, double, Make>,
+                     EngineConfig<2, int32_t, Make>, EngineConfig<3, int32_t, Make>>;
+
+// gtest's type lists cannot be concatenated, so each engine family is its own instantiation.
+template <class C>
+class BruteForceDiff : public DifferentialTest<C> {};
+template <class C>
+class SegmentedSapDiff : public DifferentialTest<C> {};
+template <class C>
+class SegmentedSapTinyChunksLocal : public DifferentialTest<C> {};
+template <class C>
+class SegmentedSapTinyChunksGlobal : public DifferentialTest<C> {};
+
+using BruteForceShapes = AllShapes<MakeBruteForce>;
+using SapShapes = AllShapes<MakeSegmentedSap<32, 25>>;
+using SapTinyLocalShapes = AllShapes<MakeSegmentedSap<4, -1>>;
+using SapTinyGlobalShapes = AllShapes<MakeSegmentedSap<4, 0>>;
+TYPED_TEST_SUITE(BruteForceDiff, BruteForceShapes);
+TYPED_TEST_SUITE(SegmentedSapDiff, SapShapes);
+TYPED_TEST_SUITE(SegmentedSapTinyChunksLocal, SapTinyLocalShapes);
+TYPED_TEST_SUITE(SegmentedSapTinyChunksGlobal, SapTinyGlobalShapes);
+
+#define BP_DIFFERENTIAL_TESTS(Suite)                              \
+  TYPED_TEST(Suite, RandomOperationsMatchOracle) {                \
+    for (const Scenario& sc : kScenarios) {                       \
+      for (uint64_t seed : TestSeeds(1000 + static_cast<uint64_t>(sc.lattice), 4)) {     \
+        this->Run(sc, seed);                                      \
+        if (this->HasFailure()) return;                           \
+      }                                                           \
+    }                                                             \
+  }
+
+BP_DIFFERENTIAL_TESTS(BruteForceDiff)
+BP_DIFFERENTIAL_TESTS(SegmentedSapDiff)
+BP_DIFFERENTIAL_TESTS(SegmentedSapTinyChunksLocal)
+BP_DIFFERENTIAL_TESTS(SegmentedSapTinyChunksGlobal)
+
+}  // namespace
+}  // namespace bp::test

@@ -1,0 +1,117 @@
+// Test support shared by the engine suites: a recording sink, a model oracle that is simpler
+// than any engine (std::map of boxes, all pairs recomputed at every query), engine configs for
+// the typed suites, and seed handling (BP_TEST_SEED replays one seed).
+#pragma once
+
+#include <cstdint>
+#include <cstdlib>
+#include <map>
+#include <memory>
+#include <set>
+#include <string>
+#include <utility>
+#include <vector>
+
+#include "bp/box.h"
+#include "bp/broadphase.h"
+#include "bp/brute_force.h"
+#include "bp/segmented_sap.h"
+
+namespace bp::test {
+
+/// Records the events of queries, in order.
+template <class Key = uint64_t>
+class RecordingSink final : public EventSink<Key> {
+ public:
+  void Collide(const Key& a, const Key& b) override { collides.emplace_back(a, b); }
+  void Uncollide(const Key& a, const Key& b) override { uncollides.emplace_back(a, b); }
+  void Clear() {
+    collides.clear();
+    uncollides.clear();
+  }
+  std::vector<std::pair<Key, Key>> collides;
+  std::vector<std::pair<Key, Key>> uncollides;
+};
+
+/// The model: boxes by key as of the calls made so far; pairs recomputed from scratch.
+template <int K, Coordinate T>
+class ModelOracle {
+ public:
+  using BoxType = Box<K, T>;
+  using Pair = std::pair<uint64_t, uint64_t>;
+
+  std::map<uint64_t, BoxType>& boxes() { return boxes_; }
+  const std::map<uint64_t, BoxType>& boxes() const { return boxes_; }
+
+  /// All overlapping pairs (a < b) of the current boxes.
+  std::set<Pair> Pairs() const {
+    std::set<Pair> out;
+    for (auto i = boxes_.begin(); i != boxes_.end(); ++i) {
+      for (auto j = std::next(i); j != boxes_.end(); ++j) {
+        if (Overlaps(i->second, j->second)) out.emplace(i->first, j->first);
+      }
+    }
+    return out;
+  }
+
+  /// The events a query must report now, in canonical order; remembers the new pair set.
+  void Query(std::vector<Pair>* out_collides, std::vector<Pair>* out_uncollides) {
+    std::set<Pair> now = Pairs();
+    out_collides->clear();
+    out_uncollides->clear();
+    for (const Pair& p : now) {
+      if (!last_.count(p)) out_collides->push_back(p);
+    }
+    for (const Pair& p : last_) {
+      if (!now.count(p)) out_uncollides->push_back(p);
+    }
+    last_ = std::move(now);
+  }
+  const std::set<Pair>& last_pairs() const { return last_; }
+
+ private:
+  std::map<uint64_t, BoxType> boxes_;
+  std::set<Pair> last_;
+};
+
+/// An engine configuration for the typed suites.
+template <int K_, class T_, class Make>
+struct EngineConfig {
+  static constexpr int K = K_;
+  using T = T_;
+  static std::unique_ptr<Broadphase<K, T>> Create() { return Make::template Create<K, T>(); }
+  static std::string Name() { return Make::Name(); }
+};
+
+struct MakeBruteForce {
+  template <int K, class T>
+  static std::unique_ptr<Broadphase<K, T>> Create() {
+    return std::make_unique<BruteForce<K, T>>();
+  }
+  static std::string Name() { return "BruteForce"; }
+};
+
+/// SegmentedSap with the given chunk capacity and global-sort fraction (percent; -1: never).
+template <uint32_t kCapacity, int kGlobalPercent>
+struct MakeSegmentedSap {
+  template <int K, class T>
+  static std::unique_ptr<Broadphase<K, T>> Create() {
+    SegmentedSapOptions options;
+    options.chunk_capacity = kCapacity;
+    options.global_sort_fraction = kGlobalPercent < 0 ? 1e300 : kGlobalPercent / 100.0;
+    return std::make_unique<SegmentedSap<K, T>>(options);
+  }
+  static std::string Name() {
+    return "SegmentedSap_c" + std::to_string(kCapacity) + "_g" + std::to_string(kGlobalPercent);
+  }
+};
+
+/// Seeds to run: BP_TEST_SEED alone if set, else `count` seeds derived from `base`.
+inline std::vector<uint64_t> TestSeeds(uint64_t base, int count) {
+  if (const char* env = std::getenv("BP_TEST_SEED")) return {std::strtoull(env, nullptr, 0)};
+  std::vector<uint64_t> seeds;
+  for (int i = 0; i < count; ++i) seeds.push_back(base + static_cast<uint64_t>(i) * 7919);
+  return seeds;
+}
+
+}  // namespace bp::test
