@@ -1,0 +1,270 @@
+// bpbench: engine benchmarks on the scenes of shared/WORKLOADS.md. One JSON line per
+// (scenario, engine, configuration) on stdout: median/mean/p90 frame milliseconds over all
+// repeats, build time, pairs, events, set hash, chain, whether they match the golden table, peak
+// RSS. A progress line goes to stderr when it is a terminal.
+//
+//   bpbench                                   S2a, S2c, S1-10k through segmented_sap
+//   bpbench --scenario S1-100k --repeats 3
+//   bpbench --sort local|global|auto --chunk 64 --coord double
+//   bpbench --threshold-sweep                 local vs global sort over the moving fraction
+#include <sys/resource.h>
+#include <unistd.h>
+
+#include <CLI/CLI.hpp>
+#include <algorithm>
+#include <cinttypes>
+#include <cstdint>
+#include <cstdio>
+#include <memory>
+#include <sstream>
+#include <string>
+#include <vector>
+
+#include "bp/brute_force.h"
+#include "bp/scene_runner.h"
+#include "bp/segmented_sap.h"
+#include "bp/workload_scenarios.h"
+
+namespace {
+
+using bp::workload::GoldenScenario;
+using bp::workload::SceneParams;
+
+struct Config {
+  std::string engine = "segmented_sap";
+  std::string coord = "float";
+  std::string sort = "auto";
+  uint32_t chunk = 32;
+  double global_fraction = bp::SegmentedSapOptions().global_sort_fraction;
+  int repeats = 5;
+  int frames = 0;  // 0: the scenario's own
+  bool progress = false;
+};
+
+struct Result {
+  std::vector<double> frame_ms;  // all frames of all repeats
+  std::vector<double> run_medians;
+  double build_ms = 0;
+  uint64_t pairs0 = 0, pairs = 0, collides = 0, uncollides = 0, set_hash = 0, chain = 0;
+  uint64_t errors = 0, swaps = 0, tests = 0, global_frames = 0, local_frames = 0;
+};
+
+double Quantile(std::vector<double> v, double q) {
+  if (v.empty()) return 0;
+  std::sort(v.begin(), v.end());
+  double pos = q * static_cast<double>(v.size() - 1);
+  size_t i = static_cast<size_t>(pos);
+  double frac = pos - static_cast<double>(i);
+  return i + 1 < v.size() ? v[i] * (1 - frac) + v[i + 1] * frac : v[i];
+}
+
+double Mean(const std::vector<double>& v) {
+  double sum = 0;
+  for (double x : v) sum += x;
+  return v.empty() ? 0 : sum / static_cast<double>(v.size());
+}
+
+long PeakRssKb() {
+  rusage usage{};
+  getrusage(RUSAGE_SELF, &usage);
+  return usage.ru_maxrss;
+}
+
+bp::SegmentedSapOptions SapOptions(const Config& cfg) {
+  bp::SegmentedSapOptions options;
+  options.chunk_capacity = cfg.chunk;
+  options.global_sort_fraction = cfg.sort == "local"    ? 1e300
+                                 : cfg.sort == "global" ? 0.0
+                                                        : cfg.global_fraction;
+  return options;
+}
+
+template <int K, class T>
+std::unique_ptr<bp::Broadphase<K, T>> MakeEngine(const Config& cfg) {
+  if (cfg.engine == "brute_force") return std::make_unique<bp::BruteForce<K, T>>();
+  return std::make_unique<bp::SegmentedSap<K, T>>(SapOptions(cfg));
+}
+
+template <int K, class T>
+Result RunTyped(const SceneParams& params, int frames, const Config& cfg, const std::string& label) {
+  Result r;
+  for (int rep = 0; rep < cfg.repeats; ++rep) {
+    auto engine = MakeEngine<K, T>(cfg);
+    bp::workload::SceneRunner<K, T> runner(*engine, params);
+    double build = runner.Build();
+    if (rep == 0) r.build_ms = build;
+    std::vector<double> run;
+    for (int f = 1; f <= frames; ++f) {
+      run.push_back(runner.Step());
+      bp::Stats s = engine->GetStats();
+      r.swaps += s.swaps;
+      r.tests += s.overlap_tests;
+      (s.global_sort ? r.global_frames : r.local_frames) += 1;
+      if (cfg.progress && (f % 5 == 0 || f == frames)) {
+        std::fprintf(stderr, "\r%-40s repeat %d/%d frame %3d/%d", label.c_str(), rep + 1,
+                     cfg.repeats, f, frames);
+      }
+    }
+    r.frame_ms.insert(r.frame_ms.end(), run.begin(), run.end());
+    r.run_medians.push_back(Quantile(run, 0.5));
+    r.pairs0 = runner.pairs_frame0();
+    r.pairs = runner.pairs();
+    r.collides = runner.collides();
+    r.uncollides = runner.uncollides();
+    r.set_hash = runner.set_hash();
+    r.chain = runner.chain();
+    r.errors += runner.errors();
+  }
+  if (cfg.progress) std::fprintf(stderr, "\r%-80s\r", "");
+  return r;
+}
+
+Result Run(const SceneParams& params, int frames, const Config& cfg, const std::string& label) {
+  bool planar = params.dim == 2;
+  if (cfg.coord == "double") {
+    return planar ? RunTyped<2, double>(params, frames, cfg, label)
+                  : RunTyped<3, double>(params, frames, cfg, label);
+  }
+  if (cfg.coord == "int32") {
+    return planar ? RunTyped<2, int32_t>(params, frames, cfg, label)
+                  : RunTyped<3, int32_t>(params, frames, cfg, label);
+  }
+  return planar ? RunTyped<2, float>(params, frames, cfg, label)
+                : RunTyped<3, float>(params, frames, cfg, label);
+}
+
+std::string Hex(uint64_t v) {
+  char buf[20];
+  std::snprintf(buf, sizeof buf, "%016" PRIx64, v);
+  return buf;
+}
+
+void PrintJson(const std::string& scenario, const SceneParams& p, int frames, const Config& cfg,
+               const Result& r, const GoldenScenario* golden, const std::string& extra) {
+  std::ostringstream o;
+  o.precision(6);
+  o << "{\"scenario\":\"" << scenario << "\",\"engine\":\"" << cfg.engine << "\",\"dim\":"
+    << p.dim << ",\"coord\":\"" << cfg.coord << "\",\"n\":" << p.n << ",\"moving\":" << p.moving
+    << ",\"churn\":" << p.churn << ",\"frames\":" << frames << ",\"repeats\":" << cfg.repeats;
+  if (cfg.engine == "segmented_sap") {
+    o << ",\"chunk\":" << cfg.chunk << ",\"sort\":\"" << cfg.sort
+      << "\",\"global_fraction\":" << cfg.global_fraction;
+  }
+  o << extra << ",\"median_ms\":" << Quantile(r.run_medians, 0.5)
+    << ",\"mean_ms\":" << Mean(r.frame_ms)
+    << ",\"p90_ms\":" << Quantile(r.frame_ms, 0.9) << ",\"run_medians_ms\":[";
+  for (size_t i = 0; i < r.run_medians.size(); ++i) o << (i ? "," : "") << r.run_medians[i];
+  double frames_total = static_cast<double>(r.frame_ms.size());
+  o << "],\"build_ms\":" << r.build_ms << ",\"pairs_frame0\":" << r.pairs0
+    << ",\"pairs\":" << r.pairs << ",\"collides\":" << r.collides
+    << ",\"uncollides\":" << r.uncollides << ",\"set_hash\":\"" << Hex(r.set_hash)
+    << "\",\"chain\":\"" << Hex(r.chain) << "\",\"swaps_per_frame\":"
+    << static_cast<double>(r.swaps) / frames_total
+    << ",\"tests_per_frame\":" << static_cast<double>(r.tests) / frames_total
+    << ",\"global_frames\":" << r.global_frames << ",\"local_frames\":" << r.local_frames
+    << ",\"errors\":" << r.errors;
+  if (golden != nullptr && frames == static_cast<int>(golden->frames)) {
+    bool ok = r.pairs0 == golden->pairs_frame0 && r.pairs == golden->pairs_end &&
+              r.collides == golden->collides && r.uncollides == golden->uncollides &&
+              r.set_hash == golden->set_hash_end && r.chain == golden->chain;
+    o << ",\"golden_ok\":" << (ok ? "true" : "false");
+  }
+  o << ",\"peak_rss_kb\":" << PeakRssKb() << "}";
+  std::printf("%s\n", o.str().c_str());
+  std::fflush(stdout);
+}
+
+// Local versus global sort as the moving fraction grows (one SAP instance, churn 1): where the
+// global insertion sort starts to win is the default global_sort_fraction.
+void ThresholdSweep(Config cfg, const std::vector<uint32_t>& sizes) {
+  const double fractions[] = {0.01, 0.02, 0.05, 0.1, 0.15, 0.2, 0.25, 0.3, 0.4, 0.6, 0.8, 1.0};
+  int frames = cfg.frames > 0 ? cfg.frames : 50;
+  for (uint32_t n : sizes) {
+    for (double f : fractions) {
+      SceneParams p;
+      p.n = n;
+      p.moving = std::max<uint32_t>(1, static_cast<uint32_t>(f * n + 0.5));
+      p.churn = 1;
+      for (const char* sort : {"local", "global"}) {
+        cfg.sort = sort;
+        std::string label = "threshold n=" + std::to_string(n) + " moving=" +
+                            std::to_string(p.moving) + " " + sort;
+        Result r = Run(p, frames, cfg, label);
+        PrintJson("threshold", p, frames, cfg, r, nullptr,
+                  ",\"moving_fraction\":" + std::to_string(f));
+      }
+    }
+  }
+}
+
+}  // namespace
+
+int main(int argc, char** argv) {
+  CLI::App app{"bpbench: broadphase engine benchmarks on the WORKLOADS.md scenes (JSON lines)"};
+  Config cfg;
+  std::string scenarios = "S2a,S2c,S1-10k";
+  std::string custom;
+  bool sweep = false;
+  std::vector<uint32_t> sweep_sizes = {3000, 10000};
+  app.add_option("--scenario,-s", scenarios,
+                 "comma-separated golden scenarios: S2a,S2b,S2c,S1-10k,S1-100k,S1-200k,S3,S4,2-D")
+      ->capture_default_str();
+  app.add_option("--custom", custom, "a custom 3-D scene instead: N,MOVING,CHURN");
+  app.add_option("--engine,-e", cfg.engine, "segmented_sap or brute_force")
+      ->check(CLI::IsMember({"segmented_sap", "brute_force"}))
+      ->capture_default_str();
+  app.add_option("--coord", cfg.coord, "coordinate type")
+      ->check(CLI::IsMember({"float", "double", "int32"}))
+      ->capture_default_str();
+  app.add_option("--sort", cfg.sort, "segmented_sap re-sort: auto, local or global")
+      ->check(CLI::IsMember({"auto", "local", "global"}))
+      ->capture_default_str();
+  app.add_option("--global-fraction", cfg.global_fraction,
+                 "auto sort: global when moved > fraction * objects")
+      ->capture_default_str();
+  app.add_option("--chunk", cfg.chunk, "segmented_sap chunk capacity (power of two)")
+      ->check(CLI::Range(4u, 4096u))
+      ->capture_default_str();
+  app.add_option("--repeats,-r", cfg.repeats, "runs per scenario (median of run medians)")
+      ->check(CLI::Range(1, 1000))
+      ->capture_default_str();
+  app.add_option("--frames,-f", cfg.frames, "frames per run (0: the scenario's 100)")
+      ->check(CLI::Range(0, 100000));
+  app.add_flag("--threshold-sweep", sweep, "measure local vs global sort over moving fractions");
+  app.add_option("--sweep-sizes", sweep_sizes, "object counts of the threshold sweep")
+      ->capture_default_str();
+  CLI11_PARSE(app, argc, argv);
+  cfg.progress = isatty(STDERR_FILENO) != 0;
+
+  if (sweep) {
+    ThresholdSweep(cfg, sweep_sizes);
+    return 0;
+  }
+  if (!custom.empty()) {
+    SceneParams p;
+    if (std::sscanf(custom.c_str(), "%u,%u,%u", &p.n, &p.moving, &p.churn) != 3 ||
+        p.moving > p.n || p.churn > p.n || p.n == 0) {
+      std::fprintf(stderr, "bpbench: --custom wants N,MOVING,CHURN with MOVING, CHURN <= N\n");
+      return 2;
+    }
+    int frames = cfg.frames > 0 ? cfg.frames : 100;
+    Result r = Run(p, frames, cfg, "custom");
+    PrintJson("custom", p, frames, cfg, r, nullptr, "");
+    return r.errors == 0 ? 0 : 1;
+  }
+  int status = 0;
+  std::stringstream list(scenarios);
+  std::string name;
+  while (std::getline(list, name, ',')) {
+    const GoldenScenario* g = bp::workload::FindGolden(name);
+    if (g == nullptr) {
+      std::fprintf(stderr, "bpbench: unknown scenario '%s'\n", name.c_str());
+      return 2;
+    }
+    int frames = cfg.frames > 0 ? cfg.frames : static_cast<int>(g->frames);
+    Result r = Run(g->Params(), frames, cfg, name + " " + cfg.engine);
+    PrintJson(name, g->Params(), frames, cfg, r, g, "");
+    if (r.errors != 0) status = 1;
+  }
+  return status;
+}

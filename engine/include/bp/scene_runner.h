@@ -1,0 +1,103 @@
+// bp::workload::SceneRunner: drives any engine through a WORKLOADS.md scene frame by frame and
+// keeps what the golden table checks (pairs, events, set hash, chain). Frame generation is not
+// timed; applying the frame and querying is. Shared by the golden tests and bpbench.
+//
+// Thread safety: none; one runner drives one engine.
+#pragma once
+
+#include <chrono>
+#include <cstdint>
+#include <string>
+
+#include "bp/broadphase.h"
+#include "bp/workload.h"
+
+namespace bp::workload {
+
+template <int K, Coordinate T>
+class SceneRunner {
+ public:
+  SceneRunner(Broadphase<K, T>& engine, const SceneParams& params)
+      : engine_(engine), scene_(params) {}
+
+  /// Inserts frame 0 and queries it; returns the milliseconds taken.
+  double Build() {
+    auto start = Clock::now();
+    for (const SceneBox& b : scene_.Initial()) Check(engine_.Insert(b.id, Convert(b)), b.id);
+    engine_.Query(sink_);
+    double ms = Ms(start);
+    pairs_frame0_ = sink_.hash.pairs();
+    chain_.AddFrame(sink_.hash.value());
+    return ms;
+  }
+
+  /// Generates the next frame, then applies and queries it; returns the milliseconds taken by
+  /// the engine alone.
+  double Step() {
+    scene_.NextFrame(&ops_);
+    uint64_t collides = sink_.collides;
+    uint64_t uncollides = sink_.uncollides;
+    auto start = Clock::now();
+    for (uint64_t id : ops_.erases) Check(engine_.Erase(id), id);
+    for (const SceneBox& b : ops_.updates) Check(engine_.Update(b.id, Convert(b)), b.id);
+    for (const SceneBox& b : ops_.inserts) Check(engine_.Insert(b.id, Convert(b)), b.id);
+    engine_.Query(sink_);
+    double ms = Ms(start);
+    collides_ += sink_.collides - collides;
+    uncollides_ += sink_.uncollides - uncollides;
+    chain_.AddFrame(sink_.hash.value());
+    ++frames_;
+    return ms;
+  }
+
+  uint64_t pairs_frame0() const { return pairs_frame0_; }
+  uint64_t pairs() const { return sink_.hash.pairs(); }
+  uint64_t collides() const { return collides_; }      ///< over frames 1..
+  uint64_t uncollides() const { return uncollides_; }  ///< over frames 1..
+  uint64_t set_hash() const { return sink_.hash.value(); }
+  uint64_t chain() const { return chain_.value(); }
+  uint64_t frames() const { return frames_; }
+  /// Calls the engine refused (must stay 0), and the first refusal.
+  uint64_t errors() const { return errors_; }
+  const std::string& first_error() const { return first_error_; }
+  const Scene& scene() const { return scene_; }
+
+ private:
+  using Clock = std::chrono::steady_clock;
+  struct HashSink final : EventSink<uint64_t> {
+    void Collide(const uint64_t& a, const uint64_t& b) override {
+      hash.Collide(a, b);
+      ++collides;
+    }
+    void Uncollide(const uint64_t& a, const uint64_t& b) override {
+      hash.Uncollide(a, b);
+      ++uncollides;
+    }
+    SetHash hash;
+    uint64_t collides = 0;
+    uint64_t uncollides = 0;
+  };
+
+  static double Ms(Clock::time_point start) {
+    return std::chrono::duration<double, std::milli>(Clock::now() - start).count();
+  }
+  Box<K, T> Convert(const SceneBox& b) const { return ToBox<K, T>(b, scene_.grid()); }
+  void Check(const Status& s, uint64_t id) {
+    if (s.ok()) return;
+    if (errors_++ == 0) first_error_ = "id " + std::to_string(id) + ": " + s.ToString();
+  }
+
+  Broadphase<K, T>& engine_;
+  Scene scene_;
+  FrameOps ops_;
+  HashSink sink_;
+  HashChain chain_;
+  uint64_t pairs_frame0_ = 0;
+  uint64_t collides_ = 0;
+  uint64_t uncollides_ = 0;
+  uint64_t frames_ = 0;
+  uint64_t errors_ = 0;
+  std::string first_error_;
+};
+
+}  // namespace bp::workload

@@ -1,0 +1,84 @@
+// The golden values of shared/WORKLOADS.md reproduced through the engines: pairs at frame 0 and
+// at the end, collide/uncollide totals, final set hash and chain, for float, double and integer
+// coordinates. Rows above 10k objects run only with BP_LONG_TESTS=1 (bpbench covers them).
+#include <gtest/gtest.h>
+
+#include <cstdint>
+#include <cstdlib>
+#include <memory>
+#include <string>
+
+#include "bp/brute_force.h"
+#include "bp/scene_runner.h"
+#include "bp/segmented_sap.h"
+#include "bp/workload_scenarios.h"
+
+namespace bp::workload {
+namespace {
+
+bool LongTests() {
+  const char* env = std::getenv("BP_LONG_TESTS");
+  return env != nullptr && std::string(env) == "1";
+}
+
+template <int K, Coordinate T>
+void ExpectGolden(Broadphase<K, T>& engine, const GoldenScenario& g) {
+  SCOPED_TRACE(std::string(g.name) + " through " + engine.Name());
+  ASSERT_EQ(K, g.dim);
+  SceneRunner<K, T> runner(engine, g.Params());
+  runner.Build();
+  EXPECT_EQ(runner.pairs_frame0(), g.pairs_frame0);
+  for (uint32_t f = 1; f <= g.frames; ++f) {
+    runner.Step();
+    if (f % 10 == 0) {
+      Status v = engine.Validate();
+      ASSERT_TRUE(v.ok()) << "frame " << f << ": " << v.ToString();
+    }
+  }
+  EXPECT_EQ(runner.errors(), 0u) << runner.first_error();
+  EXPECT_EQ(runner.pairs(), g.pairs_end);
+  EXPECT_EQ(engine.GetStats().overlaps, g.pairs_end);
+  EXPECT_EQ(runner.collides(), g.collides);
+  EXPECT_EQ(runner.uncollides(), g.uncollides);
+  EXPECT_EQ(runner.set_hash(), g.set_hash_end) << std::hex << runner.set_hash();
+  EXPECT_EQ(runner.chain(), g.chain) << std::hex << runner.chain();
+}
+
+template <int K, Coordinate T>
+void ExpectGoldenSap(const char* name) {
+  const GoldenScenario* g = FindGolden(name);
+  ASSERT_NE(g, nullptr);
+  SegmentedSap<K, T> engine;
+  ExpectGolden<K, T>(engine, *g);
+}
+
+TEST(GoldenSegmentedSap, S2aFloat) { ExpectGoldenSap<3, float>("S2a"); }
+TEST(GoldenSegmentedSap, S2aDouble) { ExpectGoldenSap<3, double>("S2a"); }
+TEST(GoldenSegmentedSap, S2aInt32) { ExpectGoldenSap<3, int32_t>("S2a"); }
+TEST(GoldenSegmentedSap, S2bFloat) { ExpectGoldenSap<3, float>("S2b"); }
+TEST(GoldenSegmentedSap, S2cDouble) { ExpectGoldenSap<3, double>("S2c"); }
+TEST(GoldenSegmentedSap, S1_10kFloat) { ExpectGoldenSap<3, float>("S1-10k"); }
+TEST(GoldenSegmentedSap, S1_10kInt32) { ExpectGoldenSap<3, int32_t>("S1-10k"); }
+TEST(GoldenSegmentedSap, Planar2DFloat) { ExpectGoldenSap<2, float>("2-D"); }
+TEST(GoldenSegmentedSap, Planar2DDouble) { ExpectGoldenSap<2, double>("2-D"); }
+
+TEST(GoldenSegmentedSap, TinyChunksAlwaysGlobalS2b) {
+  SegmentedSapOptions options;
+  options.chunk_capacity = 4;
+  options.global_sort_fraction = 0;
+  SegmentedSap<3, float> engine(options);
+  ExpectGolden<3, float>(engine, *FindGolden("S2b"));
+}
+
+TEST(GoldenSegmentedSap, LargeRows) {
+  if (!LongTests()) GTEST_SKIP() << "set BP_LONG_TESTS=1 for S1-100k, S1-200k, S3, S4";
+  for (const char* name : {"S4", "S1-100k", "S3", "S1-200k"}) ExpectGoldenSap<3, float>(name);
+}
+
+TEST(GoldenBruteForce, S2aFloat) {
+  BruteForce<3, float> engine;
+  ExpectGolden<3, float>(engine, *FindGolden("S2a"));
+}
+
+}  // namespace
+}  // namespace bp::workload
