@@ -25,8 +25,8 @@ concept Coordinate = std::is_arithmetic_v<T> && !std::is_same_v<T, bool>;
 template <int K, Coordinate T>
 struct Box {
   static_assert(K >= 1, "a box needs at least one axis");
-  std::array<T, static_cast<size_t>(K)> lo{};  ///< min corner
-  std::array<T, static_cast<size_t>(K)> hi{};  ///< max corner
+  std::array<T, static_cast<std::size_t>(K)> lo{};  ///< min corner
+  std::array<T, static_cast<std::size_t>(K)> hi{};  ///< max corner
 
   friend bool operator==(const Box&, const Box&) = default;
 };
@@ -34,7 +34,7 @@ struct Box {
 /// True iff a and b overlap (closed intervals on every axis).
 template <int K, Coordinate T>
 inline bool Overlaps(const Box<K, T>& a, const Box<K, T>& b) {
-  for (size_t i = 0; i < static_cast<size_t>(K); ++i) {
+  for (std::size_t i = 0; i < static_cast<std::size_t>(K); ++i) {
     if (a.hi[i] < b.lo[i] || b.hi[i] < a.lo[i]) return false;
   }
   return true;
@@ -43,7 +43,7 @@ inline bool Overlaps(const Box<K, T>& a, const Box<K, T>& b) {
 /// Ok if the box is valid; otherwise InvalidArgument naming the axis and the reason.
 template <int K, Coordinate T>
 Status ValidateBox(const Box<K, T>& box) {
-  for (size_t i = 0; i < static_cast<size_t>(K); ++i) {
+  for (std::size_t i = 0; i < static_cast<std::size_t>(K); ++i) {
     if constexpr (std::is_floating_point_v<T>) {
       if (std::isnan(box.lo[i]) || std::isnan(box.hi[i])) {
         return Status(StatusCode::kInvalidArgument, "NaN coordinate on axis " + std::to_string(i));

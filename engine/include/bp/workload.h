@@ -11,7 +11,9 @@
 
 #include <array>
 #include <cmath>
+#include <cstddef>
 #include <cstdint>
+#include <type_traits>
 #include <vector>
 
 #include "bp/box.h"
@@ -41,14 +43,14 @@ class Xoshiro256 {
 
 /// The scene's parameters (WORKLOADS.md, "Parameters").
 struct SceneParams {
-  int dim = 3;                   ///< 3, or 2 for the planar variant
-  uint32_t n = 10000;            ///< live objects
-  uint32_t moving = 1000;        ///< moving slots (slots 0..moving-1)
-  uint32_t churn = 50;           ///< removals (= insertions) per frame
-  double density = 0.05;         ///< volumetric density
-  double width = 1.0;            ///< cube width w
-  double speed_fraction = 0.1;   ///< speed as a fraction of w
-  uint64_t seed = 12345;         ///< random seed
+  int dim = 3;                  ///< 3, or 2 for the planar variant
+  uint32_t n = 10000;           ///< live objects
+  uint32_t moving = 1000;       ///< moving slots (slots 0..moving-1)
+  uint32_t churn = 50;          ///< removals (= insertions) per frame
+  double density = 0.05;        ///< volumetric density
+  double width = 1.0;           ///< cube width w
+  double speed_fraction = 0.1;  ///< speed as a fraction of w
+  uint64_t seed = 12345;        ///< random seed
 };
 
 /// One box of the scene: an id and float corners; axes >= dim have lo = 0, hi = w.
@@ -60,9 +62,9 @@ struct SceneBox {
 
 /// The operations of one frame, to be applied as removals, then moves, then insertions.
 struct FrameOps {
-  std::vector<uint64_t> erases;     ///< ids removed (churn), in generation order
-  std::vector<SceneBox> updates;    ///< moved boxes, slot order
-  std::vector<SceneBox> inserts;    ///< new boxes (churn), in generation order
+  std::vector<uint64_t> erases;   ///< ids removed (churn), in generation order
+  std::vector<SceneBox> updates;  ///< moved boxes, slot order
+  std::vector<SceneBox> inserts;  ///< new boxes (churn), in generation order
   void Clear() {
     erases.clear();
     updates.clear();
@@ -115,7 +117,7 @@ class Scene {
 template <int K, Coordinate T>
 Box<K, T> ToBox(const SceneBox& box, double grid) {
   Box<K, T> out;
-  for (size_t a = 0; a < static_cast<size_t>(K); ++a) {
+  for (std::size_t a = 0; a < static_cast<std::size_t>(K); ++a) {
     if constexpr (std::is_floating_point_v<T>) {
       out.lo[a] = static_cast<T>(box.lo[a]);
       out.hi[a] = static_cast<T>(box.hi[a]);
@@ -128,9 +130,7 @@ Box<K, T> ToBox(const SceneBox& box, double grid) {
 }
 
 /// min(a,b) << 32 | max(a,b), for ids below 2^32.
-inline uint64_t PairKey(uint64_t a, uint64_t b) {
-  return a < b ? (a << 32 | b) : (b << 32 | a);
-}
+inline uint64_t PairKey(uint64_t a, uint64_t b) { return a < b ? (a << 32 | b) : (b << 32 | a); }
 /// mix64(key ^ 0x5851F42D4C957F2D).
 inline uint64_t PairHash(uint64_t key) { return Mix64(key ^ 0x5851F42D4C957F2DULL); }
 
@@ -153,8 +153,14 @@ class HashChain {
 /// Maintains set_hash incrementally from collide/uncollide events on ids.
 class SetHash {
  public:
-  void Collide(uint64_t a, uint64_t b) { sum_ += PairHash(PairKey(a, b)); ++pairs_; }
-  void Uncollide(uint64_t a, uint64_t b) { sum_ -= PairHash(PairKey(a, b)); --pairs_; }
+  void Collide(uint64_t a, uint64_t b) {
+    sum_ += PairHash(PairKey(a, b));
+    ++pairs_;
+  }
+  void Uncollide(uint64_t a, uint64_t b) {
+    sum_ -= PairHash(PairKey(a, b));
+    --pairs_;
+  }
   uint64_t value() const { return sum_; }
   uint64_t pairs() const { return pairs_; }
 
