@@ -235,8 +235,7 @@ class DifferentialTest : public ::testing::Test {
     ASSERT_EQ(stats.overlaps, model_.last_pairs().size());
     ASSERT_EQ(stats.collides, collides.size());
     ASSERT_EQ(stats.uncollides, uncollides.size());
-    Status v = engine_->Validate();
-    ASSERT_TRUE(v.ok()) << v.ToString();
+    // The engine validated itself inside Query (BP_VALIDATE; failures reach failure_handler.cc).
     if (frame % 10 == 0) {
       std::set<std::pair<uint64_t, uint64_t>> all;
       engine_->ForEachOverlap([&](uint64_t a, uint64_t b) {

@@ -17,6 +17,7 @@
 #include "bp/broadphase.h"
 #include "bp/detail/keyed_engine.h"
 #include "bp/detail/pair_tracker.h"
+#include "bp/detail/sweep.h"
 
 namespace bp {
 namespace detail {
@@ -64,21 +65,10 @@ class BruteForceCore {
   void FillStats(Stats* out) const { out->overlap_tests = tests_; }
 
   Status Validate() const {
-    size_t pairs = 0;
     for (size_t i = 0; i < live_.size(); ++i) {
       if (pos_[live_[i]] != i) return Status(StatusCode::kInternal, "brute_force: bad position");
-      for (size_t j = i + 1; j < live_.size(); ++j) {
-        bool overlap = Overlaps(boxes_[live_[i]], boxes_[live_[j]]);
-        if (overlap != tracker_.Contains(live_[i], live_[j])) {
-          return Status(StatusCode::kInternal, "brute_force: overlap set differs");
-        }
-        pairs += overlap ? 1 : 0;
-      }
     }
-    if (pairs != tracker_.overlaps()) {
-      return Status(StatusCode::kInternal, "brute_force: stale pairs in the overlap set");
-    }
-    return Status::Ok();
+    return CheckOverlapSet(boxes_, live_, tracker_, kName);
   }
 
  private:

@@ -155,6 +155,9 @@ class KeyedEngine final : public Broadphase<Core::kDim, typename Core::Coord, Ke
 
     std::sort(uncollides_.begin(), uncollides_.end());
     std::sort(collides_.begin(), collides_.end());
+    if constexpr (kValidateEachQuery) {
+      if (Status v = Validate(); !v.ok()) ReportFailure(__FILE__, __LINE__, v.message().c_str());
+    }
     for (const auto& [a, b] : uncollides_) sink.Uncollide(a, b);
     for (const auto& [a, b] : collides_) sink.Collide(a, b);
   }
