@@ -101,6 +101,8 @@ class SegmentedSapCore {
 
   /// Options in force (chunk capacity rounded to a power of two).
   const Options& options() const { return options_; }
+  /// Times an R set absorbed a checkpoint removal (a fast mover's min crossed its max), ever.
+  size_t r_set_entries() const { return r_set_entries_; }
 
  private:
   // One extremum: its value and ref = handle << 1 | is_max.
@@ -171,7 +173,10 @@ class SegmentedSapCore {
     (void)inserted;
   }
   void CpRemove(uint32_t c, uint32_t h) {
-    if (!checkpoints_[c].Erase(h)) rsets_[c].push_back(h);
+    if (!checkpoints_[c].Erase(h)) {
+      rsets_[c].push_back(h);
+      ++r_set_entries_;
+    }
   }
 
   // Swaps the adjacent extrema at pl (moving right) and pr (moving left) on axis a: updates
@@ -489,6 +494,7 @@ class SegmentedSapCore {
   PairTracker tracker_;
   size_t swaps_ = 0;
   size_t tests_ = 0;
+  size_t r_set_entries_ = 0;
   bool global_ = false;
 };
 
