@@ -7,10 +7,6 @@
 //   bpbench --scenario S1-100k --repeats 3
 //   bpbench --sort local|global|auto --chunk 64 --coord double
 //   bpbench --threshold-sweep                 local vs global sort over the moving fraction
-#include <sys/resource.h>
-#include <unistd.h>
-
-#include <CLI/CLI.hpp>
 #include <algorithm>
 #include <cinttypes>
 #include <cstdint>
@@ -19,6 +15,10 @@
 #include <sstream>
 #include <string>
 #include <vector>
+
+#include <CLI/CLI.hpp>
+#include <sys/resource.h>
+#include <unistd.h>
 
 #include "bp/brute_force.h"
 #include "bp/scene_runner.h"
@@ -86,7 +86,8 @@ std::unique_ptr<bp::Broadphase<K, T>> MakeEngine(const Config& cfg) {
 }
 
 template <int K, class T>
-Result RunTyped(const SceneParams& params, int frames, const Config& cfg, const std::string& label) {
+Result RunTyped(const SceneParams& params, int frames, const Config& cfg,
+                const std::string& label) {
   Result r;
   for (int rep = 0; rep < cfg.repeats; ++rep) {
     auto engine = MakeEngine<K, T>(cfg);
@@ -143,23 +144,23 @@ void PrintJson(const std::string& scenario, const SceneParams& p, int frames, co
                const Result& r, const GoldenScenario* golden, const std::string& extra) {
   std::ostringstream o;
   o.precision(6);
-  o << "{\"scenario\":\"" << scenario << "\",\"engine\":\"" << cfg.engine << "\",\"dim\":"
-    << p.dim << ",\"coord\":\"" << cfg.coord << "\",\"n\":" << p.n << ",\"moving\":" << p.moving
+  o << "{\"scenario\":\"" << scenario << "\",\"engine\":\"" << cfg.engine << "\",\"dim\":" << p.dim
+    << ",\"coord\":\"" << cfg.coord << "\",\"n\":" << p.n << ",\"moving\":" << p.moving
     << ",\"churn\":" << p.churn << ",\"frames\":" << frames << ",\"repeats\":" << cfg.repeats;
   if (cfg.engine == "segmented_sap") {
     o << ",\"chunk\":" << cfg.chunk << ",\"sort\":\"" << cfg.sort
       << "\",\"global_fraction\":" << cfg.global_fraction;
   }
   o << extra << ",\"median_ms\":" << Quantile(r.run_medians, 0.5)
-    << ",\"mean_ms\":" << Mean(r.frame_ms)
-    << ",\"p90_ms\":" << Quantile(r.frame_ms, 0.9) << ",\"run_medians_ms\":[";
+    << ",\"mean_ms\":" << Mean(r.frame_ms) << ",\"p90_ms\":" << Quantile(r.frame_ms, 0.9)
+    << ",\"run_medians_ms\":[";
   for (size_t i = 0; i < r.run_medians.size(); ++i) o << (i ? "," : "") << r.run_medians[i];
   double frames_total = static_cast<double>(r.frame_ms.size());
   o << "],\"build_ms\":" << r.build_ms << ",\"pairs_frame0\":" << r.pairs0
     << ",\"pairs\":" << r.pairs << ",\"collides\":" << r.collides
     << ",\"uncollides\":" << r.uncollides << ",\"set_hash\":\"" << Hex(r.set_hash)
-    << "\",\"chain\":\"" << Hex(r.chain) << "\",\"swaps_per_frame\":"
-    << static_cast<double>(r.swaps) / frames_total
+    << "\",\"chain\":\"" << Hex(r.chain)
+    << "\",\"swaps_per_frame\":" << static_cast<double>(r.swaps) / frames_total
     << ",\"tests_per_frame\":" << static_cast<double>(r.tests) / frames_total
     << ",\"global_frames\":" << r.global_frames << ",\"local_frames\":" << r.local_frames
     << ",\"errors\":" << r.errors;
@@ -187,8 +188,8 @@ void ThresholdSweep(Config cfg, const std::vector<uint32_t>& sizes) {
       p.churn = 1;
       for (const char* sort : {"local", "global"}) {
         cfg.sort = sort;
-        std::string label = "threshold n=" + std::to_string(n) + " moving=" +
-                            std::to_string(p.moving) + " " + sort;
+        std::string label =
+            "threshold n=" + std::to_string(n) + " moving=" + std::to_string(p.moving) + " " + sort;
         Result r = Run(p, frames, cfg, label);
         PrintJson("threshold", p, frames, cfg, r, nullptr,
                   ",\"moving_fraction\":" + std::to_string(f));
@@ -242,8 +243,8 @@ int main(int argc, char** argv) {
   }
   if (!custom.empty()) {
     SceneParams p;
-    if (std::sscanf(custom.c_str(), "%u,%u,%u", &p.n, &p.moving, &p.churn) != 3 ||
-        p.moving > p.n || p.churn > p.n || p.n == 0) {
+    if (std::sscanf(custom.c_str(), "%u,%u,%u", &p.n, &p.moving, &p.churn) != 3 || p.moving > p.n ||
+        p.churn > p.n || p.n == 0) {
       std::fprintf(stderr, "bpbench: --custom wants N,MOVING,CHURN with MOVING, CHURN <= N\n");
       return 2;
     }

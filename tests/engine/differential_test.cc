@@ -2,8 +2,6 @@
 // by seeded random operation sequences; every query's events must equal the model oracle's set
 // difference exactly (same pairs, same canonical order), and the engine's validators must pass.
 // Replay one seed with BP_TEST_SEED=<seed>.
-#include <gtest/gtest.h>
-
 #include <algorithm>
 #include <cstdint>
 #include <limits>
@@ -13,6 +11,7 @@
 #include <vector>
 
 #include "test_support.h"
+#include <gtest/gtest.h>
 
 namespace bp::test {
 namespace {
@@ -56,7 +55,8 @@ class DifferentialTest : public ::testing::Test {
     for (int i = 0; i < sc.initial; ++i) DoInsert(next_key_++, RandomBox());
     Check(0);
     for (int frame = 1; frame <= sc.frames && !HasFatalFailure() && !HasFailure(); ++frame) {
-      int ops = Below(5) == 0 ? 0 : static_cast<int>(Below(static_cast<uint64_t>(sc.ops_per_frame)));
+      int ops =
+          Below(5) == 0 ? 0 : static_cast<int>(Below(static_cast<uint64_t>(sc.ops_per_frame)));
       for (int i = 0; i < ops; ++i) RandomOp();
       Check(frame);
     }
@@ -255,10 +255,9 @@ class DifferentialTest : public ::testing::Test {
 };
 
 template <class Make>
-using AllShapes =
-    ::testing::Types<EngineConfig<2, float, Make>, EngineConfig<3, float, Make>,
-                     EngineConfig<2, double, Make>, EngineConfig<3, double, Make>,
-                     EngineConfig<2, int32_t, Make>, EngineConfig<3, int32_t, Make>>;
+using AllShapes = ::testing::Types<EngineConfig<2, float, Make>, EngineConfig<3, float, Make>,
+                                   EngineConfig<2, double, Make>, EngineConfig<3, double, Make>,
+                                   EngineConfig<2, int32_t, Make>, EngineConfig<3, int32_t, Make>>;
 
 // gtest's type lists cannot be concatenated, so each engine family is its own instantiation.
 template <class C>
@@ -279,14 +278,14 @@ TYPED_TEST_SUITE(SegmentedSapDiff, SapShapes);
 TYPED_TEST_SUITE(SegmentedSapTinyChunksLocal, SapTinyLocalShapes);
 TYPED_TEST_SUITE(SegmentedSapTinyChunksGlobal, SapTinyGlobalShapes);
 
-#define BP_DIFFERENTIAL_TESTS(Suite)                              \
-  TYPED_TEST(Suite, RandomOperationsMatchOracle) {                \
-    for (const Scenario& sc : kScenarios) {                       \
-      for (uint64_t seed : TestSeeds(1000 + static_cast<uint64_t>(sc.lattice), 4)) {     \
-        this->Run(sc, seed);                                      \
-        if (this->HasFailure()) return;                           \
-      }                                                           \
-    }                                                             \
+#define BP_DIFFERENTIAL_TESTS(Suite)                                                 \
+  TYPED_TEST(Suite, RandomOperationsMatchOracle) {                                   \
+    for (const Scenario& sc : kScenarios) {                                          \
+      for (uint64_t seed : TestSeeds(1000 + static_cast<uint64_t>(sc.lattice), 4)) { \
+        this->Run(sc, seed);                                                         \
+        if (this->HasFailure()) return;                                              \
+      }                                                                              \
+    }                                                                                \
   }
 
 BP_DIFFERENTIAL_TESTS(BruteForceDiff)

@@ -2,8 +2,6 @@
 // bad calls that must change nothing, coalescing of calls between queries, canonical order,
 // chunk split/merge under heavy churn, fast movers whose min crosses their max (R sets), key
 // types other than integers, and dimensions other than 2 and 3.
-#include <gtest/gtest.h>
-
 #include <cmath>
 #include <cstdint>
 #include <limits>
@@ -13,6 +11,7 @@
 #include <vector>
 
 #include "test_support.h"
+#include <gtest/gtest.h>
 
 namespace bp::test {
 namespace {
@@ -64,161 +63,162 @@ TYPED_TEST_SUITE(SegmentedSapEdge, SapEdgeShapes);
 TYPED_TEST_SUITE(SegmentedSapTinyEdge, SapTinyEdgeShapes);
 
 // The body of each edge case, shared by the three suites.
-#define BP_EDGE_CASES(Suite)                                                                    \
-  TYPED_TEST(Suite, TouchingFacesEdgesAndCornersOverlap) {                                      \
-    using Coord = typename TestFixture::T;                                                          \
-    auto box = TestFixture::Cube(Coord(0), Coord(2));                                                   \
-    this->Insert(1, box);                                                                       \
-    auto face = box;                                                                            \
-    face.lo[0] = Coord(2);                                                                          \
-    face.hi[0] = Coord(4); /* shares the face x = 2 */                                              \
-    this->Insert(2, face);                                                                      \
-    auto corner = TestFixture::Cube(Coord(2), Coord(3)); /* shares one corner */                        \
-    this->Insert(3, corner);                                                                    \
-    auto apart = TestFixture::Cube(Coord(5), Coord(6));                                                 \
-    this->Insert(4, apart);                                                                     \
-    this->Query();                                                                              \
-    EXPECT_EQ(this->sink_.collides, (Pairs{{1, 2}, {1, 3}, {2, 3}}));                           \
-    /* Move 4 to touch 3 exactly, then one step away. */                                        \
-    this->Update(4, TestFixture::Cube(Coord(3), Coord(4)));                                             \
-    this->Query();                                                                              \
-    EXPECT_EQ(this->sink_.collides, (Pairs{{3, 4}}));                                           \
-    this->Update(4, TestFixture::Cube(Coord(4), Coord(5)));                                             \
-    this->Query();                                                                              \
-    EXPECT_EQ(this->sink_.uncollides, (Pairs{{3, 4}}));                                         \
-  }                                                                                             \
-  TYPED_TEST(Suite, PointsOverlapWhatContainsThem) {                                            \
-    using Coord = typename TestFixture::T;                                                          \
-    this->Insert(10, TestFixture::Cube(Coord(0), Coord(10)));                                           \
-    this->Insert(11, TestFixture::Cube(Coord(5), Coord(5)));  /* inside */                              \
-    this->Insert(12, TestFixture::Cube(Coord(10), Coord(10))); /* on the max corner */                  \
-    this->Insert(13, TestFixture::Cube(Coord(5), Coord(5)));  /* the same point as 11 */                \
-    this->Insert(14, TestFixture::Cube(Coord(11), Coord(11))); /* outside */                            \
-    this->Query();                                                                              \
-    EXPECT_EQ(this->sink_.collides, (Pairs{{10, 11}, {10, 12}, {10, 13}, {11, 13}}));           \
-  }                                                                                             \
-  TYPED_TEST(Suite, ExtremeValuesAndSignedZero) {                                               \
-    using Coord = typename TestFixture::T;                                                          \
-    using L = std::numeric_limits<Coord>;                                                           \
-    this->Insert(1, TestFixture::Cube(L::lowest(), L::max()));                                  \
-    this->Insert(2, TestFixture::Cube(L::lowest(), L::lowest()));                               \
-    this->Insert(3, TestFixture::Cube(L::max(), L::max()));                                     \
-    this->Insert(4, TestFixture::Cube(Coord(0), Coord(0)));                                             \
-    if constexpr (std::is_floating_point_v<Coord>) {                                                \
-      this->Insert(5, TestFixture::Cube(Coord(-0.0), Coord(-0.0))); /* -0.0 == +0.0 */                  \
-      this->Insert(6, TestFixture::Cube(L::denorm_min(), L::denorm_min()));                     \
-      this->Insert(7, TestFixture::Cube(-L::denorm_min(), Coord(0)));                               \
-      this->Query();                                                                            \
-      EXPECT_EQ(this->sink_.collides, (Pairs{{1, 2}, {1, 3}, {1, 4}, {1, 5}, {1, 6}, {1, 7},   \
-                                             {4, 5}, {4, 7}, {5, 7}}));                         \
-    } else {                                                                                    \
-      this->Query();                                                                            \
-      EXPECT_EQ(this->sink_.collides, (Pairs{{1, 2}, {1, 3}, {1, 4}}));                         \
-    }                                                                                           \
-    /* Teleport the giant to a point: every pair of it ends. */                                 \
-    this->Update(1, TestFixture::Cube(Coord(100), Coord(100)));                                         \
-    this->Query();                                                                              \
-    EXPECT_EQ(this->sink_.uncollides.size(), std::is_floating_point_v<Coord> ? 6u : 3u);            \
-  }                                                                                             \
-  TYPED_TEST(Suite, BadCallsChangeNothing) {                                                    \
-    using Coord = typename TestFixture::T;                                                          \
-    auto& e = *this->engine_;                                                                   \
-    this->Insert(1, TestFixture::Cube(Coord(0), Coord(1)));                                             \
-    this->Query();                                                                              \
-    EXPECT_EQ(e.Insert(1, TestFixture::Cube(Coord(0), Coord(1))).code(), StatusCode::kAlreadyExists);   \
-    EXPECT_EQ(e.Update(2, TestFixture::Cube(Coord(0), Coord(1))).code(), StatusCode::kNotFound);        \
-    EXPECT_EQ(e.Erase(2).code(), StatusCode::kNotFound);                                        \
-    auto inverted = TestFixture::Cube(Coord(0), Coord(1));                                              \
-    inverted.lo[0] = Coord(2);                                                                      \
-    Status s = e.Update(1, inverted);                                                           \
-    EXPECT_EQ(s.code(), StatusCode::kInvalidArgument);                                          \
-    EXPECT_NE(s.message().find("lo > hi on axis 0"), std::string::npos) << s.message();         \
-    EXPECT_EQ(e.Insert(3, inverted).code(), StatusCode::kInvalidArgument);                      \
-    if constexpr (std::is_floating_point_v<Coord>) {                                                \
-      auto nan = TestFixture::Cube(Coord(0), Coord(1));                                                 \
-      nan.hi[1] = std::numeric_limits<Coord>::quiet_NaN();                                          \
-      s = e.Insert(3, nan);                                                                     \
-      EXPECT_EQ(s.code(), StatusCode::kInvalidArgument);                                        \
-      EXPECT_NE(s.message().find("NaN"), std::string::npos) << s.message();                     \
-      auto inf = TestFixture::Cube(Coord(0), Coord(1));                                                 \
-      inf.lo[0] = -std::numeric_limits<Coord>::infinity();                                          \
-      EXPECT_EQ(e.Update(1, inf).code(), StatusCode::kInvalidArgument);                         \
-    }                                                                                           \
-    /* Key 3 was refused: it can be erased by nobody, inserted by anybody. */                   \
-    EXPECT_EQ(e.Erase(3).code(), StatusCode::kNotFound);                                        \
-    this->Insert(3, TestFixture::Cube(Coord(1), Coord(2)));                                             \
-    this->Query();                                                                              \
-    EXPECT_EQ(this->sink_.collides, (Pairs{{1, 3}})); /* 1 kept its box [0,1] */                \
-    EXPECT_EQ(e.Size(), 2u);                                                                    \
-  }                                                                                             \
-  TYPED_TEST(Suite, CallsBetweenQueriesCoalesce) {                                              \
-    using Coord = typename TestFixture::T;                                                          \
-    auto& e = *this->engine_;                                                                   \
-    this->Insert(1, TestFixture::Cube(Coord(0), Coord(4)));                                             \
-    this->Insert(2, TestFixture::Cube(Coord(1), Coord(2)));                                             \
-    this->Query();                                                                              \
-    ASSERT_EQ(this->sink_.collides, (Pairs{{1, 2}}));                                           \
-    /* Erase and re-insert overlapping again: no change, no event. */                           \
-    ASSERT_TRUE(e.Erase(2).ok());                                                               \
-    this->Insert(2, TestFixture::Cube(Coord(2), Coord(3)));                                             \
-    this->Query();                                                                              \
-    EXPECT_TRUE(this->sink_.collides.empty());                                                  \
-    EXPECT_TRUE(this->sink_.uncollides.empty());                                                \
-    /* Erase and re-insert elsewhere: one uncollide. */                                         \
-    ASSERT_TRUE(e.Erase(2).ok());                                                               \
-    this->Insert(2, TestFixture::Cube(Coord(8), Coord(9)));                                             \
-    this->Query();                                                                              \
-    EXPECT_EQ(this->sink_.uncollides, (Pairs{{1, 2}}));                                         \
-    /* Insert, update and erase before a query: nothing at all. */                              \
-    this->Insert(3, TestFixture::Cube(Coord(0), Coord(9)));                                             \
-    this->Update(3, TestFixture::Cube(Coord(1), Coord(9)));                                             \
-    ASSERT_TRUE(e.Erase(3).ok());                                                               \
-    EXPECT_EQ(e.Erase(3).code(), StatusCode::kNotFound);                                        \
-    this->Query();                                                                              \
-    EXPECT_TRUE(this->sink_.collides.empty());                                                  \
-    EXPECT_EQ(e.Size(), 2u);                                                                    \
-    /* An empty frame reports nothing. */                                                       \
-    this->Query();                                                                              \
-    EXPECT_TRUE(this->sink_.collides.empty() && this->sink_.uncollides.empty());                \
-    /* Erasing uncollides every pair of the object. */                                          \
-    this->Insert(4, TestFixture::Cube(Coord(0), Coord(9)));                                             \
-    this->Query();                                                                              \
-    EXPECT_EQ(this->sink_.collides, (Pairs{{1, 4}, {2, 4}}));                                   \
-    ASSERT_TRUE(e.Erase(4).ok());                                                               \
-    this->Query();                                                                              \
-    EXPECT_EQ(this->sink_.uncollides, (Pairs{{1, 4}, {2, 4}}));                                 \
-  }                                                                                             \
-  TYPED_TEST(Suite, HeavyChurnSplitsAndMergesChunks) {                                          \
-    using Coord = typename TestFixture::T;                                                          \
-    auto& e = *this->engine_;                                                                   \
-    std::mt19937_64 rng(99);                                                                    \
-    ModelOracle<TestFixture::K, Coord> model;                                                       \
-    Pairs collides, uncollides;                                                                 \
-    for (int round = 0; round < 6; ++round) {                                                   \
-      /* Fill with 300 boxes on few coordinates, then erase nearly all. */                     \
-      for (uint64_t k = 0; k < 300; ++k) {                                                      \
-        Coord lo = static_cast<Coord>(rng() % 50);                                                      \
-        auto b = TestFixture::Cube(lo, static_cast<Coord>(lo + static_cast<Coord>(rng() % 4)));         \
-        uint64_t key = static_cast<uint64_t>(round) * 1000 + k;                                 \
-        this->Insert(key, b);                                                                   \
-        model.boxes()[key] = b;                                                                 \
-      }                                                                                         \
-      this->Query();                                                                            \
-      model.Query(&collides, &uncollides);                                                      \
-      ASSERT_EQ(this->sink_.collides, collides);                                                \
-      for (auto it = model.boxes().begin(); it != model.boxes().end();) {                       \
-        if (rng() % 10 != 0) {                                                                  \
-          ASSERT_TRUE(e.Erase(it->first).ok());                                                 \
-          it = model.boxes().erase(it);                                                         \
-        } else {                                                                                \
-          ++it;                                                                                 \
-        }                                                                                       \
-      }                                                                                         \
-      this->Query();                                                                            \
-      model.Query(&collides, &uncollides);                                                      \
-      ASSERT_EQ(this->sink_.uncollides, uncollides);                                            \
-      ASSERT_EQ(e.Size(), model.boxes().size());                                                \
-    }                                                                                           \
+#define BP_EDGE_CASES(Suite)                                                                      \
+  TYPED_TEST(Suite, TouchingFacesEdgesAndCornersOverlap) {                                        \
+    using Coord = typename TestFixture::T;                                                        \
+    auto box = TestFixture::Cube(Coord(0), Coord(2));                                             \
+    this->Insert(1, box);                                                                         \
+    auto face = box;                                                                              \
+    face.lo[0] = Coord(2);                                                                        \
+    face.hi[0] = Coord(4); /* shares the face x = 2 */                                            \
+    this->Insert(2, face);                                                                        \
+    auto corner = TestFixture::Cube(Coord(2), Coord(3)); /* shares one corner */                  \
+    this->Insert(3, corner);                                                                      \
+    auto apart = TestFixture::Cube(Coord(5), Coord(6));                                           \
+    this->Insert(4, apart);                                                                       \
+    this->Query();                                                                                \
+    EXPECT_EQ(this->sink_.collides, (Pairs{{1, 2}, {1, 3}, {2, 3}}));                             \
+    /* Move 4 to touch 3 exactly, then one step away. */                                          \
+    this->Update(4, TestFixture::Cube(Coord(3), Coord(4)));                                       \
+    this->Query();                                                                                \
+    EXPECT_EQ(this->sink_.collides, (Pairs{{3, 4}}));                                             \
+    this->Update(4, TestFixture::Cube(Coord(4), Coord(5)));                                       \
+    this->Query();                                                                                \
+    EXPECT_EQ(this->sink_.uncollides, (Pairs{{3, 4}}));                                           \
+  }                                                                                               \
+  TYPED_TEST(Suite, PointsOverlapWhatContainsThem) {                                              \
+    using Coord = typename TestFixture::T;                                                        \
+    this->Insert(10, TestFixture::Cube(Coord(0), Coord(10)));                                     \
+    this->Insert(11, TestFixture::Cube(Coord(5), Coord(5)));   /* inside */                       \
+    this->Insert(12, TestFixture::Cube(Coord(10), Coord(10))); /* on the max corner */            \
+    this->Insert(13, TestFixture::Cube(Coord(5), Coord(5)));   /* the same point as 11 */         \
+    this->Insert(14, TestFixture::Cube(Coord(11), Coord(11))); /* outside */                      \
+    this->Query();                                                                                \
+    EXPECT_EQ(this->sink_.collides, (Pairs{{10, 11}, {10, 12}, {10, 13}, {11, 13}}));             \
+  }                                                                                               \
+  TYPED_TEST(Suite, ExtremeValuesAndSignedZero) {                                                 \
+    using Coord = typename TestFixture::T;                                                        \
+    using L = std::numeric_limits<Coord>;                                                         \
+    this->Insert(1, TestFixture::Cube(L::lowest(), L::max()));                                    \
+    this->Insert(2, TestFixture::Cube(L::lowest(), L::lowest()));                                 \
+    this->Insert(3, TestFixture::Cube(L::max(), L::max()));                                       \
+    this->Insert(4, TestFixture::Cube(Coord(0), Coord(0)));                                       \
+    if constexpr (std::is_floating_point_v<Coord>) {                                              \
+      this->Insert(5, TestFixture::Cube(Coord(-0.0), Coord(-0.0))); /* -0.0 == +0.0 */            \
+      this->Insert(6, TestFixture::Cube(L::denorm_min(), L::denorm_min()));                       \
+      this->Insert(7, TestFixture::Cube(-L::denorm_min(), Coord(0)));                             \
+      this->Query();                                                                              \
+      EXPECT_EQ(this->sink_.collides,                                                             \
+                (Pairs{{1, 2}, {1, 3}, {1, 4}, {1, 5}, {1, 6}, {1, 7}, {4, 5}, {4, 7}, {5, 7}})); \
+    } else {                                                                                      \
+      this->Query();                                                                              \
+      EXPECT_EQ(this->sink_.collides, (Pairs{{1, 2}, {1, 3}, {1, 4}}));                           \
+    }                                                                                             \
+    /* Teleport the giant to a point: every pair of it ends. */                                   \
+    this->Update(1, TestFixture::Cube(Coord(100), Coord(100)));                                   \
+    this->Query();                                                                                \
+    EXPECT_EQ(this->sink_.uncollides.size(), std::is_floating_point_v<Coord> ? 6u : 3u);          \
+  }                                                                                               \
+  TYPED_TEST(Suite, BadCallsChangeNothing) {                                                      \
+    using Coord = typename TestFixture::T;                                                        \
+    auto& e = *this->engine_;                                                                     \
+    this->Insert(1, TestFixture::Cube(Coord(0), Coord(1)));                                       \
+    this->Query();                                                                                \
+    EXPECT_EQ(e.Insert(1, TestFixture::Cube(Coord(0), Coord(1))).code(),                          \
+              StatusCode::kAlreadyExists);                                                        \
+    EXPECT_EQ(e.Update(2, TestFixture::Cube(Coord(0), Coord(1))).code(), StatusCode::kNotFound);  \
+    EXPECT_EQ(e.Erase(2).code(), StatusCode::kNotFound);                                          \
+    auto inverted = TestFixture::Cube(Coord(0), Coord(1));                                        \
+    inverted.lo[0] = Coord(2);                                                                    \
+    Status s = e.Update(1, inverted);                                                             \
+    EXPECT_EQ(s.code(), StatusCode::kInvalidArgument);                                            \
+    EXPECT_NE(s.message().find("lo > hi on axis 0"), std::string::npos) << s.message();           \
+    EXPECT_EQ(e.Insert(3, inverted).code(), StatusCode::kInvalidArgument);                        \
+    if constexpr (std::is_floating_point_v<Coord>) {                                              \
+      auto nan = TestFixture::Cube(Coord(0), Coord(1));                                           \
+      nan.hi[1] = std::numeric_limits<Coord>::quiet_NaN();                                        \
+      s = e.Insert(3, nan);                                                                       \
+      EXPECT_EQ(s.code(), StatusCode::kInvalidArgument);                                          \
+      EXPECT_NE(s.message().find("NaN"), std::string::npos) << s.message();                       \
+      auto inf = TestFixture::Cube(Coord(0), Coord(1));                                           \
+      inf.lo[0] = -std::numeric_limits<Coord>::infinity();                                        \
+      EXPECT_EQ(e.Update(1, inf).code(), StatusCode::kInvalidArgument);                           \
+    }                                                                                             \
+    /* Key 3 was refused: it can be erased by nobody, inserted by anybody. */                     \
+    EXPECT_EQ(e.Erase(3).code(), StatusCode::kNotFound);                                          \
+    this->Insert(3, TestFixture::Cube(Coord(1), Coord(2)));                                       \
+    this->Query();                                                                                \
+    EXPECT_EQ(this->sink_.collides, (Pairs{{1, 3}})); /* 1 kept its box [0,1] */                  \
+    EXPECT_EQ(e.Size(), 2u);                                                                      \
+  }                                                                                               \
+  TYPED_TEST(Suite, CallsBetweenQueriesCoalesce) {                                                \
+    using Coord = typename TestFixture::T;                                                        \
+    auto& e = *this->engine_;                                                                     \
+    this->Insert(1, TestFixture::Cube(Coord(0), Coord(4)));                                       \
+    this->Insert(2, TestFixture::Cube(Coord(1), Coord(2)));                                       \
+    this->Query();                                                                                \
+    ASSERT_EQ(this->sink_.collides, (Pairs{{1, 2}}));                                             \
+    /* Erase and re-insert overlapping again: no change, no event. */                             \
+    ASSERT_TRUE(e.Erase(2).ok());                                                                 \
+    this->Insert(2, TestFixture::Cube(Coord(2), Coord(3)));                                       \
+    this->Query();                                                                                \
+    EXPECT_TRUE(this->sink_.collides.empty());                                                    \
+    EXPECT_TRUE(this->sink_.uncollides.empty());                                                  \
+    /* Erase and re-insert elsewhere: one uncollide. */                                           \
+    ASSERT_TRUE(e.Erase(2).ok());                                                                 \
+    this->Insert(2, TestFixture::Cube(Coord(8), Coord(9)));                                       \
+    this->Query();                                                                                \
+    EXPECT_EQ(this->sink_.uncollides, (Pairs{{1, 2}}));                                           \
+    /* Insert, update and erase before a query: nothing at all. */                                \
+    this->Insert(3, TestFixture::Cube(Coord(0), Coord(9)));                                       \
+    this->Update(3, TestFixture::Cube(Coord(1), Coord(9)));                                       \
+    ASSERT_TRUE(e.Erase(3).ok());                                                                 \
+    EXPECT_EQ(e.Erase(3).code(), StatusCode::kNotFound);                                          \
+    this->Query();                                                                                \
+    EXPECT_TRUE(this->sink_.collides.empty());                                                    \
+    EXPECT_EQ(e.Size(), 2u);                                                                      \
+    /* An empty frame reports nothing. */                                                         \
+    this->Query();                                                                                \
+    EXPECT_TRUE(this->sink_.collides.empty() && this->sink_.uncollides.empty());                  \
+    /* Erasing uncollides every pair of the object. */                                            \
+    this->Insert(4, TestFixture::Cube(Coord(0), Coord(9)));                                       \
+    this->Query();                                                                                \
+    EXPECT_EQ(this->sink_.collides, (Pairs{{1, 4}, {2, 4}}));                                     \
+    ASSERT_TRUE(e.Erase(4).ok());                                                                 \
+    this->Query();                                                                                \
+    EXPECT_EQ(this->sink_.uncollides, (Pairs{{1, 4}, {2, 4}}));                                   \
+  }                                                                                               \
+  TYPED_TEST(Suite, HeavyChurnSplitsAndMergesChunks) {                                            \
+    using Coord = typename TestFixture::T;                                                        \
+    auto& e = *this->engine_;                                                                     \
+    std::mt19937_64 rng(99);                                                                      \
+    ModelOracle<TestFixture::K, Coord> model;                                                     \
+    Pairs collides, uncollides;                                                                   \
+    for (int round = 0; round < 6; ++round) {                                                     \
+      /* Fill with 300 boxes on few coordinates, then erase nearly all. */                        \
+      for (uint64_t k = 0; k < 300; ++k) {                                                        \
+        Coord lo = static_cast<Coord>(rng() % 50);                                                \
+        auto b = TestFixture::Cube(lo, static_cast<Coord>(lo + static_cast<Coord>(rng() % 4)));   \
+        uint64_t key = static_cast<uint64_t>(round) * 1000 + k;                                   \
+        this->Insert(key, b);                                                                     \
+        model.boxes()[key] = b;                                                                   \
+      }                                                                                           \
+      this->Query();                                                                              \
+      model.Query(&collides, &uncollides);                                                        \
+      ASSERT_EQ(this->sink_.collides, collides);                                                  \
+      for (auto it = model.boxes().begin(); it != model.boxes().end();) {                         \
+        if (rng() % 10 != 0) {                                                                    \
+          ASSERT_TRUE(e.Erase(it->first).ok());                                                   \
+          it = model.boxes().erase(it);                                                           \
+        } else {                                                                                  \
+          ++it;                                                                                   \
+        }                                                                                         \
+      }                                                                                           \
+      this->Query();                                                                              \
+      model.Query(&collides, &uncollides);                                                        \
+      ASSERT_EQ(this->sink_.uncollides, uncollides);                                              \
+      ASSERT_EQ(e.Size(), model.boxes().size());                                                  \
+    }                                                                                             \
   }
 
 BP_EDGE_CASES(BruteForceEdge)

@@ -1,10 +1,10 @@
 // Routes broken engine invariants (BP_ASSERT, the per-query validators) to test failures: the
 // failure is recorded with the active SCOPED_TRACE (seed, frame), then an exception unwinds the
 // test instead of aborting the whole binary.
-#include <gtest/gtest.h>
-
 #include <stdexcept>
 #include <string>
+
+#include <gtest/gtest.h>
 
 #include "bp/detail/assert.h"
 

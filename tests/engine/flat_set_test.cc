@@ -1,12 +1,12 @@
 // FlatSet against std::set under a seeded random operation sequence (leveldb-style model test).
-#include <gtest/gtest.h>
+#include "bp/detail/flat_set.h"
 
 #include <cstdint>
 #include <random>
 #include <set>
 
-#include "bp/detail/flat_set.h"
 #include "test_support.h"
+#include <gtest/gtest.h>
 
 namespace bp::detail {
 namespace {

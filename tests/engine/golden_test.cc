@@ -1,12 +1,12 @@
 // The golden values of shared/WORKLOADS.md reproduced through the engines: pairs at frame 0 and
 // at the end, collide/uncollide totals, final set hash and chain, for float, double and integer
 // coordinates. Rows above 10k objects run only with BP_LONG_TESTS=1 (bpbench covers them).
-#include <gtest/gtest.h>
-
 #include <cstdint>
 #include <cstdlib>
 #include <memory>
 #include <string>
+
+#include <gtest/gtest.h>
 
 #include "bp/brute_force.h"
 #include "bp/scene_runner.h"

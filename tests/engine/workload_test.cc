@@ -2,8 +2,6 @@
 // checked by an independent, simple exact oracle (sort-and-sweep over all live boxes).
 #include "bp/workload.h"
 
-#include <gtest/gtest.h>
-
 #include <algorithm>
 #include <cinttypes>
 #include <cmath>
@@ -13,6 +11,8 @@
 #include <string>
 #include <unordered_map>
 #include <vector>
+
+#include <gtest/gtest.h>
 
 namespace bp::workload {
 namespace {

@@ -40,17 +40,17 @@ class EventSink {
 
 /// Counters describing the engine and its last Query.
 struct Stats {
-  size_t objects = 0;           ///< live objects after the last query
-  size_t overlaps = 0;          ///< overlapping pairs after the last query
-  size_t inserts = 0;           ///< inserts applied by the last query
-  size_t updates = 0;           ///< updates applied by the last query
-  size_t erases = 0;            ///< erases applied by the last query
-  size_t collides = 0;          ///< collide events of the last query
-  size_t uncollides = 0;        ///< uncollide events of the last query
-  size_t swaps = 0;             ///< extremum swaps of the last query
-  size_t overlap_tests = 0;     ///< full box tests of the last query
-  bool global_sort = false;     ///< the last query sorted globally (not per moved object)
-  size_t chunks = 0;            ///< chunks over all axes (segmented lists only)
+  size_t objects = 0;        ///< live objects after the last query
+  size_t overlaps = 0;       ///< overlapping pairs after the last query
+  size_t inserts = 0;        ///< inserts applied by the last query
+  size_t updates = 0;        ///< updates applied by the last query
+  size_t erases = 0;         ///< erases applied by the last query
+  size_t collides = 0;       ///< collide events of the last query
+  size_t uncollides = 0;     ///< uncollide events of the last query
+  size_t swaps = 0;          ///< extremum swaps of the last query
+  size_t overlap_tests = 0;  ///< full box tests of the last query
+  bool global_sort = false;  ///< the last query sorted globally (not per moved object)
+  size_t chunks = 0;         ///< chunks over all axes (segmented lists only)
 };
 
 /// The interface of every broadphase: K axes, coordinates T, client keys Key.

@@ -75,9 +75,8 @@ class SegmentedSapCore {
     swaps_ = 0;
     tests_ = 0;
     for (uint32_t h : erases) EraseObject(h);
-    global_ = !updates.empty() &&
-              static_cast<double>(updates.size()) > options_.global_sort_fraction *
-                                                        static_cast<double>(live_);
+    global_ = !updates.empty() && static_cast<double>(updates.size()) >
+                                      options_.global_sort_fraction * static_cast<double>(live_);
     if (global_) {
       GlobalUpdate(updates);
     } else {
@@ -119,7 +118,7 @@ class SegmentedSapCore {
     std::vector<Chunk> chunks;    // by chunk id
     std::vector<uint32_t> order;  // chunk ids in list order
     std::vector<uint32_t> free_chunks;
-    std::vector<uint32_t> pos;    // pos[ref]: position of extremum ref
+    std::vector<uint32_t> pos;  // pos[ref]: position of extremum ref
   };
 
   // (value, min before max): the list order. Touching boxes overlap because a min sorts before a
@@ -294,7 +293,8 @@ class SegmentedSapCore {
   }
 
   void Renumber(Axis& ax, size_t from) {
-    for (size_t r = from; r < ax.order.size(); ++r) ax.chunks[ax.order[r]].rank = static_cast<uint32_t>(r);
+    for (size_t r = from; r < ax.order.size(); ++r)
+      ax.chunks[ax.order[r]].rank = static_cast<uint32_t>(r);
   }
 
   void MoveItems(Axis& ax, uint32_t from, uint32_t to, uint32_t n) {

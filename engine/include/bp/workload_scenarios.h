@@ -44,8 +44,7 @@ inline constexpr GoldenScenario kGoldenScenarios[] = {
      0x8fb8ee8db6ed1fca},
     {"S4", 3, 100000, 1000, 50, 100, 20014, 20169, 4948, 4793, 0x4e3138f6f44efe52,
      0x6d6113b0730825f8},
-    {"2-D", 2, 10000, 1000, 50, 100, 975, 980, 2159, 2154, 0x147c669596380529,
-     0xf11fe373f509505a},
+    {"2-D", 2, 10000, 1000, 50, 100, 975, 980, 2159, 2154, 0x147c669596380529, 0xf11fe373f509505a},
 };
 
 /// The golden row named name, or nullptr.

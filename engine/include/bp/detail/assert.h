@@ -41,8 +41,8 @@ inline constexpr bool kValidateEachQuery = false;
 }  // namespace bp
 
 #if !defined(NDEBUG) || defined(BP_VALIDATE)
-#define BP_ASSERT(cond)                                                    \
-  do {                                                                     \
+#define BP_ASSERT(cond)                                                           \
+  do {                                                                            \
     if (!(cond)) ::bp::ReportFailure(__FILE__, __LINE__, "BP_ASSERT(" #cond ")"); \
   } while (false)
 #else

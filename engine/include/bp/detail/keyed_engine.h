@@ -212,8 +212,7 @@ class KeyedEngine final : public Broadphase<Core::kDim, typename Core::Coord, Ke
   };
 
   static bool Present(const Slot& slot) {
-    return slot.pending == Pending::kInsert ||
-           (slot.live && slot.pending != Pending::kErase);
+    return slot.pending == Pending::kInsert || (slot.live && slot.pending != Pending::kErase);
   }
   static Status Annotate(const Status& s, const char* what) {
     return Status(s.code(), std::string(what) + ": " + s.message());
