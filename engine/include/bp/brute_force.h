@@ -28,6 +28,8 @@ class BruteForceCore {
   static constexpr int kDim = K;
   using Coord = T;
   static constexpr const char* kName = "brute_force";
+  // Pair keys pack two handles; 0xFFFFFFFF stays free so no pair key is all ones.
+  static constexpr size_t kMaxHandles = 0xFFFFFFFFu;
   struct Options {};
 
   explicit BruteForceCore(const Options& /*options*/ = Options()) {}

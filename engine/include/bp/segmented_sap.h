@@ -2,8 +2,9 @@
 // Woods, IEEE VR 2009, section 3.2.2) with event output (section 3.3).
 //
 // Per axis the sorted extrema live in chunks of `chunk_capacity` slots (a power of two, paper:
-// about 32), addressed through `order`, an array of chunk ids in list order that is binary
-// searched to place new extrema. An extremum's position is one integer: chunk id << shift | slot.
+// about 32), linked in list order (prev/next chunk ids) and indexed by `order`, an array of
+// chunk ids in list order that is binary searched to place new extrema (rebuilt lazily from the
+// links after a merge). An extremum's position is one integer: chunk id << shift | slot.
 // Insert and erase touch at most one chunk's worth of extrema per extremum; overlaps of an
 // inserted or erased object are found through its chunks and the checkpoint set of the chunk to
 // the left. Moved objects are re-sorted either locally (each moved extremum bubbles to its
@@ -18,8 +19,11 @@
 // Thread safety: none (see bp/broadphase.h).
 // Invariants (checked by Validate):
 //  1. Every axis list is sorted by (value, min before max at equal value).
-//  2. pos[ref] addresses the extremum ref; every chunk in `order` holds 1..capacity extrema and
-//     knows its rank in `order`.
+//  2. pos[ref] addresses the extremum ref; every linked chunk holds 1..capacity extrema; the
+//     links are consistent; `order` (when valid) lists the linked chunks in list order; every
+//     chunk id is either linked or free (free: empty, no checkpoints).
+//  2b. Any two adjacent chunks hold more than capacity / 2 extrema together, so positions
+//     (chunk id << shift | slot) stay below 8 * objects + 2 * capacity: 32 bits suffice.
 //  3. CP(c) equals the recomputation above and every R(c) is empty.
 //  4. The tracker's overlap set equals the overlapping pairs of the live boxes.
 #pragma once
@@ -61,10 +65,14 @@ class SegmentedSapCore {
   static constexpr size_t kAxes = static_cast<size_t>(K);
   using Coord = T;
   static constexpr const char* kName = "segmented_sap";
+  // Positions are chunk << shift | slot in 32 bits. Merging keeps adjacent chunks above half a
+  // chunk together, so chunks <= 4 * extrema / capacity + 1 and positions < 8 * handles + cap:
+  // 2^28 handles keep every position (and every ref, handle << 1 | is_max) in range.
+  static constexpr size_t kMaxHandles = size_t{1} << 28;
   using Options = SegmentedSapOptions;
 
   explicit SegmentedSapCore(const Options& options = Options()) : options_(options) {
-    uint32_t cap = std::clamp<uint32_t>(std::bit_ceil(options.chunk_capacity), 4, 4096);
+    uint32_t cap = std::bit_ceil(std::clamp<uint32_t>(options.chunk_capacity, 4, 4096));
     cap_ = cap;
     shift_ = static_cast<uint32_t>(std::countr_zero(cap));
     options_.chunk_capacity = cap;
@@ -93,7 +101,7 @@ class SegmentedSapCore {
     out->overlap_tests = tests_;
     out->global_sort = global_;
     out->chunks = 0;
-    for (const Axis& ax : axes_) out->chunks += ax.order.size();
+    for (const Axis& ax : axes_) out->chunks += ax.chunk_count;
   }
 
   Status Validate() const;
@@ -109,14 +117,21 @@ class SegmentedSapCore {
     T value;
     uint32_t ref;
   };
+  static constexpr uint32_t kNone = ~uint32_t{0};
   struct Chunk {
-    uint32_t count = 0;  // extrema held, 1..cap_ while in `order`
-    uint32_t rank = 0;   // index in `order`
+    uint32_t count = 0;     // extrema held, 1..cap_ while linked
+    uint32_t prev = kNone;  // neighbours in list order
+    uint32_t next = kNone;
   };
+  static_assert(sizeof(Chunk) == 12, "Chunk: count, prev, next");
+  static_assert(sizeof(Ext) == (sizeof(T) > 4 ? 2 * sizeof(T) : 8), "Ext: value and ref");
   struct Axis {
     std::vector<Ext> items;       // chunk c owns items[c << shift_, (c << shift_) + cap_)
     std::vector<Chunk> chunks;    // by chunk id
-    std::vector<uint32_t> order;  // chunk ids in list order
+    uint32_t head = kNone;        // first chunk
+    size_t chunk_count = 0;       // linked chunks
+    std::vector<uint32_t> order;  // chunk ids in list order, for binary search
+    bool order_valid = true;      // false after a merge or removal until the next rebuild
     std::vector<uint32_t> free_chunks;
     std::vector<uint32_t> pos;  // pos[ref]: position of extremum ref
   };
@@ -138,9 +153,8 @@ class SegmentedSapCore {
       *out_q = p - 1;
       return true;
     }
-    uint32_t rank = ax.chunks[ChunkOf(p)].rank;
-    if (rank == 0) return false;
-    uint32_t c = ax.order[rank - 1];
+    uint32_t c = ax.chunks[ChunkOf(p)].prev;
+    if (c == kNone) return false;
     *out_q = Base(c) + ax.chunks[c].count - 1;
     return true;
   }
@@ -150,9 +164,9 @@ class SegmentedSapCore {
       *out_q = p + 1;
       return true;
     }
-    uint32_t rank = ax.chunks[c].rank;
-    if (rank + 1 >= ax.order.size()) return false;
-    *out_q = Base(ax.order[rank + 1]);
+    uint32_t next = ax.chunks[c].next;
+    if (next == kNone) return false;
+    *out_q = Base(next);
     return true;
   }
 
@@ -257,7 +271,7 @@ class SegmentedSapCore {
     for (size_t a = 0; a < kAxes; ++a) {
       Axis& ax = axes_[a];
       // Insertion sort in list order: each inverted pair swaps exactly once.
-      for (uint32_t c : ax.order) {
+      for (uint32_t c = ax.head; c != kNone; c = ax.chunks[c].next) {
         uint32_t base = Base(c);
         uint32_t n = ax.chunks[c].count;
         for (uint32_t i = 0; i < n; ++i) {
@@ -292,9 +306,24 @@ class SegmentedSapCore {
     return c;
   }
 
-  void Renumber(Axis& ax, size_t from) {
-    for (size_t r = from; r < ax.order.size(); ++r)
-      ax.chunks[ax.order[r]].rank = static_cast<uint32_t>(r);
+  // Links chunk d right after chunk c.
+  void LinkAfter(Axis& ax, uint32_t c, uint32_t d) {
+    uint32_t next = ax.chunks[c].next;
+    ax.chunks[d].prev = c;
+    ax.chunks[d].next = next;
+    ax.chunks[c].next = d;
+    if (next != kNone) ax.chunks[next].prev = d;
+    ++ax.chunk_count;
+  }
+
+  // The binary-search index, rebuilt from the links when a merge invalidated it.
+  const std::vector<uint32_t>& Order(Axis& ax) {
+    if (!ax.order_valid) {
+      ax.order.clear();
+      for (uint32_t c = ax.head; c != kNone; c = ax.chunks[c].next) ax.order.push_back(c);
+      ax.order_valid = true;
+    }
+    return ax.order;
   }
 
   void MoveItems(Axis& ax, uint32_t from, uint32_t to, uint32_t n) {
@@ -304,8 +333,9 @@ class SegmentedSapCore {
     }
   }
 
-  // Splits the full chunk c: its upper half moves to a new chunk placed right after it.
-  void Split(size_t a, uint32_t c) {
+  // Splits the full chunk c, at index `index` of a valid `order`: its upper half moves to a new
+  // chunk placed right after it.
+  void Split(size_t a, uint32_t c, size_t index) {
     uint32_t d = NewChunk(a);
     Axis& ax = axes_[a];
     uint32_t keep = ax.chunks[c].count / 2;
@@ -313,9 +343,8 @@ class SegmentedSapCore {
     MoveItems(ax, Base(c) + keep, Base(d), moved);
     ax.chunks[c].count = keep;
     ax.chunks[d].count = moved;
-    uint32_t rank = ax.chunks[c].rank;
-    ax.order.insert(ax.order.begin() + rank + 1, d);
-    Renumber(ax, rank + 1);
+    LinkAfter(ax, c, d);
+    ax.order.insert(ax.order.begin() + static_cast<std::ptrdiff_t>(index) + 1, d);
     if (a == 0) {
       BP_ASSERT(rsets_[c].empty());
       // d inherits c's trailing edge; c's new edge is d's minus what d's extrema open or close.
@@ -334,10 +363,16 @@ class SegmentedSapCore {
 
   void RemoveChunk(size_t a, uint32_t c) {
     Axis& ax = axes_[a];
-    uint32_t rank = ax.chunks[c].rank;
-    ax.order.erase(ax.order.begin() + rank);
-    Renumber(ax, rank);
-    ax.chunks[c].count = 0;
+    Chunk& ch = ax.chunks[c];
+    if (ch.prev != kNone) {
+      ax.chunks[ch.prev].next = ch.next;
+    } else {
+      ax.head = ch.next;
+    }
+    if (ch.next != kNone) ax.chunks[ch.next].prev = ch.prev;
+    ch = Chunk{};
+    --ax.chunk_count;
+    ax.order_valid = false;
     ax.free_chunks.push_back(c);
     if (a == 0) {
       checkpoints_[c].Clear();
@@ -345,21 +380,22 @@ class SegmentedSapCore {
     }
   }
 
-  // Merges chunk c with a neighbour when both fit in half a chunk; the merged chunk keeps the
-  // checkpoints of the right one (its trailing edge).
+  // After an erase from chunk c: merges c with its right neighbour, then with its left one,
+  // whenever the two fit in half a chunk. This keeps invariant 2b (every two adjacent chunks
+  // hold more than half a chunk), which bounds the chunk count by 4 * extrema / capacity + 2.
   void MaybeMerge(size_t a, uint32_t c) {
     Axis& ax = axes_[a];
-    uint32_t rank = ax.chunks[c].rank;
     uint32_t limit = cap_ / 2;
-    uint32_t left = c, right = c;
-    if (rank + 1 < ax.order.size() &&
-        ax.chunks[c].count + ax.chunks[ax.order[rank + 1]].count <= limit) {
-      right = ax.order[rank + 1];
-    } else if (rank > 0 && ax.chunks[c].count + ax.chunks[ax.order[rank - 1]].count <= limit) {
-      left = ax.order[rank - 1];
-    } else {
-      return;
-    }
+    uint32_t next = ax.chunks[c].next;
+    if (next != kNone && ax.chunks[c].count + ax.chunks[next].count <= limit) Merge(a, c, next);
+    uint32_t prev = ax.chunks[c].prev;
+    if (prev != kNone && ax.chunks[prev].count + ax.chunks[c].count <= limit) Merge(a, prev, c);
+  }
+
+  // Appends chunk right's extrema to its left neighbour left and drops right; the merged chunk
+  // keeps right's checkpoints (its trailing edge).
+  void Merge(size_t a, uint32_t left, uint32_t right) {
+    Axis& ax = axes_[a];
     MoveItems(ax, Base(right), Base(left) + ax.chunks[left].count, ax.chunks[right].count);
     ax.chunks[left].count += ax.chunks[right].count;
     if (a == 0) {
@@ -371,23 +407,27 @@ class SegmentedSapCore {
 
   void InsertExtremum(size_t a, Ext e) {
     Axis& ax = axes_[a];
-    if (ax.order.empty()) {
+    if (ax.head == kNone) {
       uint32_t c = NewChunk(a);
-      ax.order.push_back(c);
-      ax.chunks[c].rank = 0;
+      ax.head = c;
+      ax.chunk_count = 1;
+      ax.order.assign(1, c);
+      ax.order_valid = true;
       ax.chunks[c].count = 1;
       ax.items[Base(c)] = e;
       ax.pos[e.ref] = Base(c);
       return;
     }
     // The first chunk whose last extremum sorts after e, else the last chunk.
-    auto it = std::partition_point(ax.order.begin(), ax.order.end(), [&](uint32_t c) {
+    const std::vector<uint32_t>& order = Order(ax);
+    auto it = std::partition_point(order.begin(), order.end(), [&](uint32_t c) {
       return !Less(e, ax.items[Base(c) + ax.chunks[c].count - 1]);
     });
-    uint32_t c = it == ax.order.end() ? ax.order.back() : *it;
+    if (it == order.end()) --it;
+    uint32_t c = *it;
     if (ax.chunks[c].count == cap_) {
-      Split(a, c);
-      uint32_t d = ax.order[ax.chunks[c].rank + 1];
+      Split(a, c, static_cast<size_t>(it - order.begin()));
+      uint32_t d = ax.chunks[c].next;
       if (!Less(e, ax.items[Base(c) + ax.chunks[c].count - 1])) c = d;
     }
     uint32_t base = Base(c);
@@ -426,10 +466,9 @@ class SegmentedSapCore {
   void ForEachAxis0Candidate(uint32_t h, F&& f) const {
     const Axis& ax = axes_[0];
     uint32_t pmax = ax.pos[2 * h + 1];
-    uint32_t rank = ax.chunks[ChunkOf(ax.pos[2 * h])].rank;
-    if (rank > 0) checkpoints_[ax.order[rank - 1]].ForEach(f);
-    for (;; ++rank) {
-      uint32_t c = ax.order[rank];
+    uint32_t c = ChunkOf(ax.pos[2 * h]);
+    if (ax.chunks[c].prev != kNone) checkpoints_[ax.chunks[c].prev].ForEach(f);
+    for (;; c = ax.chunks[c].next) {
       uint32_t base = Base(c);
       for (uint32_t i = 0; i < ax.chunks[c].count; ++i) {
         if (base + i == pmax) return;
@@ -444,9 +483,7 @@ class SegmentedSapCore {
   void ForEachSpannedChunk(uint32_t h, F&& f) const {
     const Axis& ax = axes_[0];
     uint32_t cmax = ChunkOf(ax.pos[2 * h + 1]);
-    for (uint32_t rank = ax.chunks[ChunkOf(ax.pos[2 * h])].rank; ax.order[rank] != cmax; ++rank) {
-      f(ax.order[rank]);
-    }
+    for (uint32_t c = ChunkOf(ax.pos[2 * h]); c != cmax; c = ax.chunks[c].next) f(c);
   }
 
   void InsertObject(uint32_t h, const Box<K, T>& box) {
@@ -504,17 +541,30 @@ Status SegmentedSapCore<K, T>::Validate() const {
     return Status(StatusCode::kInternal, "segmented_sap: " + what);
   };
   std::vector<uint32_t> live;
+  size_t live_flags = 0;
+  for (uint8_t f : live_flag_) live_flags += f;
+  if (live_flags != live_) return fail("live flags differ from the live count");
   for (size_t a = 0; a < kAxes; ++a) {
     const Axis& ax = axes_[a];
     size_t total = 0;
     const Ext* prev = nullptr;
     std::vector<uint8_t> open(live_flag_.size(), 0);
     size_t open_count = 0;
-    for (size_t r = 0; r < ax.order.size(); ++r) {
-      uint32_t c = ax.order[r];
+    // Walk the links; every chunk id must be linked once or free once.
+    std::vector<uint8_t> seen(ax.chunks.size(), 0);
+    size_t r = 0;
+    uint32_t before = kNone;
+    for (uint32_t c = ax.head; c != kNone; before = c, c = ax.chunks[c].next, ++r) {
+      if (c >= ax.chunks.size() || seen[c]++) return fail("chunk links broken or cyclic");
       const Chunk& ch = ax.chunks[c];
-      if (ch.rank != r) return fail("chunk rank out of date on axis " + std::to_string(a));
+      if (ch.prev != before) return fail("chunk prev link out of date");
+      if (ax.order_valid && (r >= ax.order.size() || ax.order[r] != c)) {
+        return fail("chunk index differs from the links");
+      }
       if (ch.count == 0 || ch.count > cap_) return fail("chunk population out of range");
+      if (before != kNone && ax.chunks[before].count + ch.count <= cap_ / 2) {
+        return fail("two adjacent chunks hold half a chunk or less");
+      }
       for (uint32_t i = 0; i < ch.count; ++i) {
         uint32_t p = Base(c) + i;
         const Ext& e = ax.items[p];
@@ -552,6 +602,17 @@ Status SegmentedSapCore<K, T>::Validate() const {
       }
     }
     if (total != 2 * live_) return fail("extrema count differs from live objects");
+    if (r != ax.chunk_count || (ax.order_valid && ax.order.size() != r)) {
+      return fail("chunk count differs from the links");
+    }
+    for (uint32_t c : ax.free_chunks) {
+      if (c >= seen.size() || seen[c]++) return fail("free chunk linked or listed twice");
+      if (ax.chunks[c].count != 0) return fail("free chunk not empty");
+      if (a == 0 && (!checkpoints_[c].empty() || !rsets_[c].empty())) {
+        return fail("free chunk keeps checkpoints");
+      }
+    }
+    if (std::find(seen.begin(), seen.end(), 0) != seen.end()) return fail("chunk id lost");
   }
   return CheckOverlapSet(boxes_, std::move(live), tracker_, kName);
 }

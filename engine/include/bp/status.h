@@ -16,6 +16,7 @@ enum class StatusCode {
   kInvalidArgument,  ///< a bad value: NaN, infinity, lo > hi, bad parameter
   kAlreadyExists,    ///< insert of a key that is present
   kNotFound,         ///< update or erase of a key that is absent
+  kResourceExhausted,  ///< the engine holds as many objects as its handles can address
   kInternal,         ///< a broken invariant (found by Validate)
 };
 

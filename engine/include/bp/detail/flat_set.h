@@ -9,7 +9,9 @@
 // Thread safety: none; a FlatSet is owned by one engine.
 // Invariants:
 //  1. Every stored value is != kEmpty (all bits set); kEmpty marks a free slot.
-//  2. Capacity is 0 or a power of two, and size <= capacity / 2 after any insertion.
+//  2. Capacity is 0 or a power of two, size <= capacity / 2 after any insertion, and a table
+//     above kMinCapacity shrinks when it falls under capacity / 8 (so walking the table, in
+//     ForEach and Clear, costs O(size + 1) amortised, not the size of some earlier burst).
 //  3. Every value lies in the probe run that starts at its home slot (no gap in between).
 #pragma once
 
@@ -31,11 +33,12 @@ class FlatSet {
 
  public:
   static constexpr U kEmpty = ~U{0};
+  static constexpr size_t kMinCapacity = 8;
 
   /// Inserts v; false if it was present.
   bool Insert(U v) {
     BP_ASSERT(v != kEmpty);
-    if ((size_ + 1) * 2 > slots_.size()) Grow();
+    if ((size_ + 1) * 2 > slots_.size()) Rehash(slots_.empty() ? kMinCapacity : slots_.size() * 2);
     size_t i = Home(v);
     while (slots_[i] != kEmpty) {
       if (slots_[i] == v) return false;
@@ -70,6 +73,7 @@ class FlatSet {
     }
     slots_[hole] = kEmpty;
     --size_;
+    if (slots_.size() > kMinCapacity && size_ * 8 < slots_.size()) Rehash(slots_.size() / 2);
     return true;
   }
 
@@ -93,12 +97,20 @@ class FlatSet {
     }
   }
 
-  /// Removes every element; keeps the allocation.
+  /// Removes every element; keeps a small allocation.
   void Clear() {
     if (size_ == 0) return;
-    std::fill(slots_.begin(), slots_.end(), kEmpty);
+    if (slots_.size() > kMinCapacity) {
+      slots_.assign(kMinCapacity, kEmpty);
+      SetCapacity(kMinCapacity);
+    } else {
+      std::fill(slots_.begin(), slots_.end(), kEmpty);
+    }
     size_ = 0;
   }
+
+  /// Slots allocated (for tests of invariant 2).
+  size_t capacity() const { return slots_.size(); }
 
   size_t size() const { return size_; }
   bool empty() const { return size_ == 0; }
@@ -110,15 +122,22 @@ class FlatSet {
     return static_cast<size_t>(h >> shift_);
   }
 
-  void Grow() {
-    size_t cap = slots_.empty() ? 8 : slots_.size() * 2;
-    std::vector<U> old(cap, kEmpty);
-    old.swap(slots_);
+  void SetCapacity(size_t cap) {
     mask_ = cap - 1;
     shift_ = 64 - std::countr_zero(cap);
+  }
+
+  void Rehash(size_t cap) {
+    std::vector<U> old(cap, kEmpty);
+    old.swap(slots_);
+    SetCapacity(cap);
     size_ = 0;
     for (U v : old) {
-      if (v != kEmpty) Insert(v);
+      if (v == kEmpty) continue;
+      size_t i = Home(v);
+      while (slots_[i] != kEmpty) i = (i + 1) & mask_;
+      slots_[i] = v;
+      ++size_;
     }
   }
 

@@ -5,6 +5,7 @@
 //
 // A core works on handles only (it never sees keys) and must provide:
 //   static constexpr int kDim; using Coord = T; static constexpr const char* kName;
+//   static constexpr size_t kMaxHandles;   // handles are 0..kMaxHandles-1
 //   void Apply(span<const uint32_t> erases, span<const HandleBox> updates,
 //              span<const HandleBox> inserts);   // in this order
 //   PairTracker& tracker(); const PairTracker& tracker() const;
@@ -63,6 +64,10 @@ class KeyedEngine final : public Broadphase<Core::kDim, typename Core::Coord, Ke
       slot.pending = Pending::kUpdate;
       slot.box = box;
       return Status::Ok();
+    }
+    if (free_.empty() && slots_.size() >= Core::kMaxHandles) {
+      return Status(StatusCode::kResourceExhausted,
+                    "insert: " + std::to_string(Core::kMaxHandles) + " objects are the limit");
     }
     uint32_t h = AllocHandle();
     Slot& slot = slots_[h];
@@ -224,7 +229,6 @@ class KeyedEngine final : public Broadphase<Core::kDim, typename Core::Coord, Ke
       free_.pop_back();
       return h;
     }
-    BP_ASSERT(slots_.size() < 0xFFFFFFFEu);
     slots_.emplace_back();
     return static_cast<uint32_t>(slots_.size() - 1);
   }
