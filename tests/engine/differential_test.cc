@@ -33,6 +33,9 @@ constexpr Scenario kScenarios[] = {
     {"sparse", 400, 30, 160, 50, 60},
     // Few objects, many operations per frame: churn dominates.
     {"churn_heavy", 40, 10, 20, 80, 40},
+    // A larger population with hundreds of operations per frame: many chunks, mass teleports,
+    // moved fractions above the global-sort threshold.
+    {"large", 300, 20, 700, 8, 500},
 };
 
 template <class Config>
@@ -270,7 +273,7 @@ template <class C>
 class SegmentedSapTinyChunksGlobal : public DifferentialTest<C> {};
 
 using BruteForceShapes = AllShapes<MakeBruteForce>;
-using SapShapes = AllShapes<MakeSegmentedSap<32, 25>>;
+using SapShapes = AllShapes<MakeSegmentedSap<32, 7>>;  // the default options
 using SapTinyLocalShapes = AllShapes<MakeSegmentedSap<4, -1>>;
 using SapTinyGlobalShapes = AllShapes<MakeSegmentedSap<4, 0>>;
 TYPED_TEST_SUITE(BruteForceDiff, BruteForceShapes);

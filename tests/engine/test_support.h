@@ -106,9 +106,11 @@ struct MakeSegmentedSap {
   }
 };
 
-/// Seeds to run: BP_TEST_SEED alone if set, else `count` seeds derived from `base`.
+/// Seeds to run: BP_TEST_SEED alone if set, else `count` seeds derived from `base`, or
+/// BP_TEST_SEEDS of them (a soak run: BP_TEST_SEEDS=500).
 inline std::vector<uint64_t> TestSeeds(uint64_t base, int count) {
   if (const char* env = std::getenv("BP_TEST_SEED")) return {std::strtoull(env, nullptr, 0)};
+  if (const char* env = std::getenv("BP_TEST_SEEDS")) count = std::atoi(env);
   std::vector<uint64_t> seeds;
   for (int i = 0; i < count; ++i) seeds.push_back(base + static_cast<uint64_t>(i) * 7919);
   return seeds;

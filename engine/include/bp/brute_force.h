@@ -65,6 +65,7 @@ class BruteForceCore {
   PairTracker& tracker() { return tracker_; }
   const PairTracker& tracker() const { return tracker_; }
   void FillStats(Stats* out) const { out->overlap_tests = tests_; }
+  size_t live() const { return live_.size(); }
 
   Status Validate() const {
     for (size_t i = 0; i < live_.size(); ++i) {

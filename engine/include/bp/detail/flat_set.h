@@ -49,8 +49,9 @@ class FlatSet {
     return true;
   }
 
-  /// Erases v; false if it was absent.
-  bool Erase(U v) {
+  /// Erases v; false if it was absent. With shrink, a table that falls under capacity / 8
+  /// halves (invariant 2); without, the caller restores the invariant with ShrinkToFit.
+  bool Erase(U v, bool shrink = true) {
     if (size_ == 0) return false;
     size_t i = Home(v);
     while (slots_[i] != v) {
@@ -73,7 +74,9 @@ class FlatSet {
     }
     slots_[hole] = kEmpty;
     --size_;
-    if (slots_.size() > kMinCapacity && size_ * 8 < slots_.size()) Rehash(slots_.size() / 2);
+    if (shrink && slots_.size() > kMinCapacity && size_ * 8 < slots_.size()) {
+      Rehash(slots_.size() / 2);
+    }
     return true;
   }
 
@@ -107,6 +110,16 @@ class FlatSet {
       std::fill(slots_.begin(), slots_.end(), kEmpty);
     }
     size_ = 0;
+  }
+
+  /// Shrinks the table when it is more than 8 times what max(size, expected) needs, so that a
+  /// set that is emptied and refilled every frame keeps its allocation unless a burst left it
+  /// oversized.
+  void ShrinkToFit(size_t expected) {
+    size_t need = std::max(size_, expected) + 1;
+    if (slots_.size() > kMinCapacity && slots_.size() > 8 * need) {
+      Rehash(std::max(kMinCapacity, std::bit_ceil(2 * need)));
+    }
   }
 
   /// Slots allocated (for tests of invariant 2).

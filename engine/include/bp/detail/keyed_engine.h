@@ -8,7 +8,7 @@
 //   static constexpr size_t kMaxHandles;   // handles are 0..kMaxHandles-1
 //   void Apply(span<const uint32_t> erases, span<const HandleBox> updates,
 //              span<const HandleBox> inserts);   // in this order
-//   PairTracker& tracker(); const PairTracker& tracker() const;
+//   PairTracker& tracker(); const PairTracker& tracker() const; size_t live() const;
 //   void FillStats(Stats* out) const; Status Validate() const;
 //
 // Thread safety: none (see bp/broadphase.h).
@@ -195,8 +195,29 @@ class KeyedEngine final : public Broadphase<Core::kDim, typename Core::Coord, Ke
   }
 
   Status Validate() const override {
-    if (core_.tracker().pending_changes() != 0) {
-      return Status(StatusCode::kInternal, "changed pairs left after a query");
+    auto fail = [](const char* what) {
+      return Status(StatusCode::kInternal, std::string("front end: ") + what);
+    };
+    if (core_.tracker().pending_changes() != 0) return fail("changed pairs left after a query");
+    size_t live = 0, mapped = 0, queued = 0;
+    for (const Slot& slot : slots_) {
+      live += slot.live ? 1 : 0;
+      mapped += (slot.live || slot.pending == Pending::kInsert) ? 1 : 0;
+      queued += slot.queued ? 1 : 0;
+    }
+    if (live != live_count_ || live != core_.live()) return fail("live counts disagree");
+    if (mapped != handle_of_.size()) return fail("key map size differs from mapped slots");
+    if (queued != queue_.size()) return fail("queue differs from queued flags");
+    for (const auto& [key, h] : handle_of_) {
+      if (h >= slots_.size() || !(slots_[h].key == key)) return fail("key map points astray");
+    }
+    std::vector<uint8_t> free_seen(slots_.size(), 0);
+    for (uint32_t h : free_) {
+      if (h >= slots_.size() || free_seen[h]++) return fail("free list broken");
+      const Slot& slot = slots_[h];
+      if (slot.live || slot.queued || slot.pending != Pending::kNone) {
+        return fail("free handle in use");
+      }
     }
     return core_.Validate();
   }

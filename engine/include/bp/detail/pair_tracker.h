@@ -41,8 +41,10 @@ class PairTracker {
   void DrainChanges(F&& f) {
     for (uint64_t p : toggled_) {
       // A pair toggled back to its old state is no longer in changed_ (or was reported already).
-      if (changed_.Erase(p)) f(PairFirst(p), PairSecond(p), overlaps_.Contains(p));
+      if (changed_.Erase(p, /*shrink=*/false))
+        f(PairFirst(p), PairSecond(p), overlaps_.Contains(p));
     }
+    changed_.ShrinkToFit(toggled_.size());
     toggled_.clear();
     if (toggled_.capacity() > 4096) toggled_.shrink_to_fit();
   }
