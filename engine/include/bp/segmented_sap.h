@@ -143,7 +143,7 @@ class SegmentedSapCore {
   // (value, min before max): the list order. Touching boxes overlap because a min sorts before a
   // max of equal value.
   static bool Less(const Ext& a, const Ext& b) {
-    return a.value < b.value || (!(b.value < a.value) && (a.ref & 1u) < (b.ref & 1u));
+    return a.value < b.value || (a.value == b.value && (a.ref & 1u) < (b.ref & 1u));
   }
   static bool IsMax(uint32_t ref) { return (ref & 1u) != 0; }
   static uint32_t HandleOf(uint32_t ref) { return ref >> 1; }
@@ -196,16 +196,9 @@ class SegmentedSapCore {
     }
   }
 
-  // Swaps the adjacent extrema at pl (moving right) and pr (moving left) on axis a: updates
-  // positions, checkpoints and the candidate set.
-  void SwapAdjacent(size_t a, uint32_t pl, uint32_t pr) {
-    Axis& ax = axes_[a];
-    Ext x = ax.items[pl];
-    Ext y = ax.items[pr];
-    ax.items[pl] = y;
-    ax.items[pr] = x;
-    ax.pos[y.ref] = pl;
-    ax.pos[x.ref] = pr;
+  // Extremum x moved right from pl to pr and y left from pr to pl (adjacent positions) on
+  // axis a: updates the checkpoints and the candidate set. Positions are the caller's.
+  void Crossed(size_t a, Ext x, Ext y, uint32_t pl, uint32_t pr) {
     ++swaps_;
     uint32_t hx = HandleOf(x.ref);
     uint32_t hy = HandleOf(y.ref);
@@ -236,18 +229,44 @@ class SegmentedSapCore {
     }
   }
 
+  // Insertion sort step: moves the extremum at p left past every greater neighbour. The moving
+  // extremum stays in a register and each passed one shifts once ("hole" insertion); returns
+  // whether it moved.
+  bool SortLeft(size_t a, uint32_t p) {
+    Axis& ax = axes_[a];
+    const Ext e = ax.items[p];
+    uint32_t q = 0;
+    uint32_t start = p;
+    while (PrevPos(ax, p, &q) && Less(e, ax.items[q])) {
+      const Ext y = ax.items[q];
+      ax.items[p] = y;
+      ax.pos[y.ref] = p;
+      Crossed(a, y, e, q, p);
+      p = q;
+    }
+    if (p == start) return false;
+    ax.items[p] = e;
+    ax.pos[e.ref] = p;
+    return true;
+  }
+
   // Moves the extremum at p to its place after its value changed.
   void SortExtremum(size_t a, uint32_t p) {
+    if (SortLeft(a, p)) return;
     Axis& ax = axes_[a];
+    const Ext e = ax.items[p];
     uint32_t q = 0;
-    while (PrevPos(ax, p, &q) && Less(ax.items[p], ax.items[q])) {
-      SwapAdjacent(a, q, p);
+    uint32_t start = p;
+    while (NextPos(ax, p, &q) && Less(ax.items[q], e)) {
+      const Ext y = ax.items[q];
+      ax.items[p] = y;
+      ax.pos[y.ref] = p;
+      Crossed(a, e, y, p, q);
       p = q;
     }
-    while (NextPos(ax, p, &q) && Less(ax.items[q], ax.items[p])) {
-      SwapAdjacent(a, p, q);
-      p = q;
-    }
+    if (p == start) return;
+    ax.items[p] = e;
+    ax.pos[e.ref] = p;
   }
 
   void LocalUpdate(uint32_t h, const Box<K, T>& box) {
@@ -278,14 +297,7 @@ class SegmentedSapCore {
       for (uint32_t c = ax.head; c != kNone; c = ax.chunks[c].next) {
         uint32_t base = Base(c);
         uint32_t n = ax.chunks[c].count;
-        for (uint32_t i = 0; i < n; ++i) {
-          uint32_t p = base + i;
-          uint32_t q = 0;
-          while (PrevPos(ax, p, &q) && Less(ax.items[p], ax.items[q])) {
-            SwapAdjacent(a, q, p);
-            p = q;
-          }
-        }
+        for (uint32_t i = 0; i < n; ++i) SortLeft(a, base + i);
       }
     }
   }
