@@ -115,7 +115,7 @@ class DifferentialTest : public ::testing::Test {
 
   void RandomOp() {
     bool empty = model_.boxes().empty();
-    switch (Below(14)) {
+    switch (Below(15)) {
       case 0:
       case 1:  // insert a new key, or re-insert a key erased earlier
         if (!erased_keys_.empty() && Below(3) == 0) {
@@ -183,6 +183,12 @@ class DifferentialTest : public ::testing::Test {
         return;
       case 12:  // bad calls are refused and change nothing
         BadCalls();
+        return;
+      case 13:  // a burst: more new objects than live ones (bulk loads), among other changes
+        if (Below(4) == 0 && model_.boxes().size() < 150) {
+          size_t n = model_.boxes().size() + 1 + Below(8);
+          for (size_t i = 0; i < n; ++i) DoInsert(next_key_++, RandomBox());
+        }
         return;
       default:  // many objects onto one coordinate
         if (!empty) {
@@ -274,8 +280,10 @@ class SegmentedSapTinyChunksGlobal : public DifferentialTest<C> {};
 
 using BruteForceShapes = AllShapes<MakeBruteForce>;
 using SapShapes = AllShapes<MakeSegmentedSap<32, 7>>;  // the default options
-using SapTinyLocalShapes = AllShapes<MakeSegmentedSap<4, -1>>;
-using SapTinyGlobalShapes = AllShapes<MakeSegmentedSap<4, 0>>;
+// Local sort and one-at-a-time inserts only.
+using SapTinyLocalShapes = AllShapes<MakeSegmentedSap<4, -1, 0>>;
+// Global sort always, and a bulk rebuild whenever a frame's inserts reach the live count.
+using SapTinyGlobalShapes = AllShapes<MakeSegmentedSap<4, 0, 1>>;
 TYPED_TEST_SUITE(BruteForceDiff, BruteForceShapes);
 TYPED_TEST_SUITE(SegmentedSapDiff, SapShapes);
 TYPED_TEST_SUITE(SegmentedSapTinyChunksLocal, SapTinyLocalShapes);

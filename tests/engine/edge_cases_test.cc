@@ -236,6 +236,62 @@ TYPED_TEST_SUITE(SegmentedSapTinyEdge, SapTinyEdgeShapes);
     }                                                                                             \
   }
 
+// One frame that moves, erases and inserts more objects than are live: SegmentedSap takes its
+// bulk-load path, which must report exactly the same events as everybody else.
+#define BP_BULK_CASE(Suite)                                                                 \
+  TYPED_TEST(Suite, BulkFrameWithMovesAndErases) {                                          \
+    using Coord = typename TestFixture::T;                                                  \
+    auto& e = *this->engine_;                                                               \
+    std::mt19937_64 rng(7);                                                                 \
+    ModelOracle<TestFixture::K, Coord> model;                                               \
+    Pairs collides, uncollides;                                                             \
+    auto random_box = [&] {                                                                 \
+      Coord lo = static_cast<Coord>(rng() % 40);                                            \
+      return TestFixture::Cube(lo, static_cast<Coord>(lo + static_cast<Coord>(rng() % 5))); \
+    };                                                                                      \
+    for (uint64_t k = 0; k < 100; ++k) {                                                    \
+      auto b = random_box();                                                                \
+      this->Insert(k, b);                                                                   \
+      model.boxes()[k] = b;                                                                 \
+    }                                                                                       \
+    for (int frame = 0; frame < 3; ++frame) {                                               \
+      this->Query();                                                                        \
+      model.Query(&collides, &uncollides);                                                  \
+      ASSERT_EQ(this->sink_.collides, collides);                                            \
+      ASSERT_EQ(this->sink_.uncollides, uncollides);                                        \
+      uint64_t base = 1000 * static_cast<uint64_t>(frame + 1);                              \
+      for (uint64_t k = 0; k < 30; ++k) { /* teleports */                                   \
+        auto it = model.boxes().begin();                                                    \
+        std::advance(it, static_cast<long>(rng() % model.boxes().size()));                  \
+        auto b = random_box();                                                              \
+        this->Update(it->first, b);                                                         \
+        it->second = b;                                                                     \
+      }                                                                                     \
+      for (uint64_t k = 0; k < 20; ++k) { /* erases */                                      \
+        auto it = model.boxes().begin();                                                    \
+        std::advance(it, static_cast<long>(rng() % model.boxes().size()));                  \
+        ASSERT_TRUE(e.Erase(it->first).ok());                                               \
+        model.boxes().erase(it);                                                            \
+      }                                                                                     \
+      for (uint64_t k = 0, n = model.boxes().size() + 10; k < n; ++k) { /* burst */         \
+        auto b = random_box();                                                              \
+        this->Insert(base + k, b);                                                          \
+        model.boxes()[base + k] = b;                                                        \
+      }                                                                                     \
+    }                                                                                       \
+    this->Query();                                                                          \
+    model.Query(&collides, &uncollides);                                                    \
+    ASSERT_EQ(this->sink_.collides, collides);                                              \
+    ASSERT_EQ(this->sink_.uncollides, uncollides);                                          \
+    if (e.Name() == "segmented_sap") {                                                      \
+      EXPECT_TRUE(e.GetStats().rebuilt);                                                    \
+    }                                                                                       \
+  }
+
+BP_BULK_CASE(BruteForceEdge)
+BP_BULK_CASE(SegmentedSapEdge)
+BP_BULK_CASE(SegmentedSapTinyEdge)
+
 BP_EDGE_CASES(BruteForceEdge)
 BP_EDGE_CASES(SegmentedSapEdge)
 BP_EDGE_CASES(SegmentedSapTinyEdge)

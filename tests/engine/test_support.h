@@ -91,18 +91,21 @@ struct MakeBruteForce {
   static std::string Name() { return "BruteForce"; }
 };
 
-/// SegmentedSap with the given chunk capacity and global-sort fraction (percent; -1: never).
-template <uint32_t kCapacity, int kGlobalPercent>
+/// SegmentedSap with the given chunk capacity, global-sort fraction (percent; -1: never) and
+/// bulk-load minimum (0: never).
+template <uint32_t kCapacity, int kGlobalPercent, uint32_t kBulkMin = 64>
 struct MakeSegmentedSap {
   template <int K, class T>
   static std::unique_ptr<Broadphase<K, T>> Create() {
     SegmentedSapOptions options;
     options.chunk_capacity = kCapacity;
     options.global_sort_fraction = kGlobalPercent < 0 ? 1e300 : kGlobalPercent / 100.0;
+    options.bulk_load_min = kBulkMin;
     return std::make_unique<SegmentedSap<K, T>>(options);
   }
   static std::string Name() {
-    return "SegmentedSap_c" + std::to_string(kCapacity) + "_g" + std::to_string(kGlobalPercent);
+    return "SegmentedSap_c" + std::to_string(kCapacity) + "_g" + std::to_string(kGlobalPercent) +
+           "_b" + std::to_string(kBulkMin);
   }
 };
 

@@ -50,6 +50,7 @@ struct Stats {
   size_t swaps = 0;          ///< extremum swaps of the last query
   size_t overlap_tests = 0;  ///< full box tests of the last query
   bool global_sort = false;  ///< the last query sorted globally (not per moved object)
+  bool rebuilt = false;      ///< the last query rebuilt its structures from scratch (bulk load)
   size_t chunks = 0;         ///< chunks over all axes (segmented lists only)
 };
 

@@ -54,6 +54,10 @@ struct SegmentedSapOptions {
   /// and per moved object otherwise. Measured with `bpbench --threshold-sweep` (README): the
   /// crossover lies between 5% and 10% moved for 3k..30k objects on one SAP instance.
   double global_sort_fraction = 0.07;
+  /// A query whose inserts number at least max(bulk_load_min, live objects before it) rebuilds
+  /// the lists by sorting and sweeping (O(n log n + pairs)) instead of inserting one object at a
+  /// time (O(objects overlapping on axis 0) each): start-up, restart and refills. 0 disables it.
+  uint32_t bulk_load_min = 64;
 };
 
 namespace detail {
@@ -83,6 +87,13 @@ class SegmentedSapCore {
     swaps_ = 0;
     tests_ = 0;
     for (uint32_t h : erases) EraseObject(h);
+    rebuilt_ = options_.bulk_load_min != 0 && inserts.size() >= options_.bulk_load_min &&
+               inserts.size() >= live_;
+    if (rebuilt_) {
+      global_ = true;
+      Rebuild(updates, inserts);
+      return;
+    }
     global_ = !updates.empty() && static_cast<double>(updates.size()) >
                                       options_.global_sort_fraction * static_cast<double>(live_);
     if (global_) {
@@ -101,6 +112,7 @@ class SegmentedSapCore {
     out->swaps = swaps_;
     out->overlap_tests = tests_;
     out->global_sort = global_;
+    out->rebuilt = rebuilt_;
     out->chunks = 0;
     for (const Axis& ax : axes_) out->chunks += ax.chunk_count;
   }
@@ -502,12 +514,124 @@ class SegmentedSapCore {
     for (uint32_t c = ChunkOf(ax.pos[2 * h]); c != cmax; c = ax.chunks[c].next) f(c);
   }
 
-  void InsertObject(uint32_t h, const Box<K, T>& box) {
-    if (h >= boxes_.size()) {
-      boxes_.resize(h + 1);
-      live_flag_.resize(h + 1, 0);
-      for (Axis& ax : axes_) ax.pos.resize(2 * (static_cast<size_t>(h) + 1));
+  void Reserve(uint32_t h) {
+    if (h < boxes_.size()) return;
+    boxes_.resize(h + 1);
+    live_flag_.resize(h + 1, 0);
+    for (Axis& ax : axes_) ax.pos.resize(2 * (static_cast<size_t>(h) + 1));
+  }
+
+  // Bulk load: applies the updates and inserts to the boxes, rebuilds every axis from sorted
+  // extrema (chunks three quarters full, checkpoints by one sweep), recomputes the overlap set
+  // by sweeping axis 0, and reconciles the tracker with it, so events stay the exact difference.
+  void Rebuild(std::span<const HandleBox<K, T>> updates, std::span<const HandleBox<K, T>> inserts) {
+    for (const auto& [h, box] : updates) boxes_[h] = box;
+    for (const auto& [h, box] : inserts) {
+      Reserve(h);
+      BP_ASSERT(!live_flag_[h]);
+      boxes_[h] = box;
+      live_flag_[h] = 1;
+      ++live_;
     }
+    std::vector<uint32_t> live;
+    live.reserve(live_);
+    for (uint32_t h = 0; h < live_flag_.size(); ++h) {
+      if (live_flag_[h]) live.push_back(h);
+    }
+    for (size_t a = 0; a < kAxes; ++a) BuildAxis(a, live);
+
+    // Sweep axis 0: each min meets the objects whose interval is open there.
+    FlatSet<uint64_t> now;
+    std::vector<uint32_t> active;
+    std::vector<uint32_t> slot(live_flag_.size(), 0);
+    const Axis& ax = axes_[0];
+    for (uint32_t c = ax.head; c != kNone; c = ax.chunks[c].next) {
+      for (uint32_t i = 0; i < ax.chunks[c].count; ++i) {
+        uint32_t ref = ax.items[Base(c) + i].ref;
+        uint32_t h = HandleOf(ref);
+        if (IsMax(ref)) {
+          uint32_t last = active.back();
+          active[slot[h]] = last;
+          slot[last] = slot[h];
+          active.pop_back();
+          continue;
+        }
+        for (uint32_t b : active) {
+          ++tests_;
+          if (Overlaps(boxes_[h], boxes_[b])) now.Insert(HandlePair(h, b));
+        }
+        slot[h] = static_cast<uint32_t>(active.size());
+        active.push_back(h);
+      }
+    }
+    std::vector<uint64_t> gone;
+    tracker_.overlap_set().ForEach([&](uint64_t p) {
+      if (!now.Contains(p)) gone.push_back(p);
+    });
+    for (uint64_t p : gone) tracker_.Remove(PairFirst(p), PairSecond(p));
+    now.ForEach([&](uint64_t p) { tracker_.Add(PairFirst(p), PairSecond(p)); });
+  }
+
+  // Replaces axis a's lists by the sorted extrema of the live handles.
+  void BuildAxis(size_t a, const std::vector<uint32_t>& live) {
+    Axis& ax = axes_[a];
+    for (uint32_t c = ax.head; c != kNone;) {
+      uint32_t next = ax.chunks[c].next;
+      ax.chunks[c] = Chunk{};
+      ax.free_chunks.push_back(c);
+      if (a == 0) {
+        checkpoints_[c].Clear();
+        rsets_[c].clear();
+      }
+      c = next;
+    }
+    ax.head = kNone;
+    ax.chunk_count = 0;
+    ax.order.clear();
+    ax.order_valid = true;
+    std::vector<Ext> ext;
+    ext.reserve(2 * live.size());
+    for (uint32_t h : live) {
+      ext.push_back(Ext{boxes_[h].lo[a], 2 * h});
+      ext.push_back(Ext{boxes_[h].hi[a], 2 * h + 1});
+    }
+    // Ties broken by ref, so the layout does not depend on the sort algorithm.
+    std::sort(ext.begin(), ext.end(), [](const Ext& x, const Ext& y) {
+      return Less(x, y) || (!Less(y, x) && x.ref < y.ref);
+    });
+    uint32_t fill = std::max<uint32_t>(1, cap_ * 3 / 4);
+    FlatSet<uint32_t> open;
+    uint32_t prev = kNone;
+    for (size_t i = 0; i < ext.size(); i += fill) {
+      uint32_t c = NewChunk(a);
+      if (prev == kNone) {
+        ax.head = c;
+        ax.chunk_count = 1;
+      } else {
+        LinkAfter(ax, prev, c);
+      }
+      ax.order.push_back(c);
+      uint32_t n = static_cast<uint32_t>(std::min<size_t>(fill, ext.size() - i));
+      for (uint32_t j = 0; j < n; ++j) {
+        const Ext& e = ext[i + j];
+        ax.items[Base(c) + j] = e;
+        ax.pos[e.ref] = Base(c) + j;
+        if (a == 0) {
+          if (IsMax(e.ref)) {
+            open.Erase(HandleOf(e.ref));
+          } else {
+            open.Insert(HandleOf(e.ref));
+          }
+        }
+      }
+      ax.chunks[c].count = n;
+      if (a == 0) checkpoints_[c] = open;
+      prev = c;
+    }
+  }
+
+  void InsertObject(uint32_t h, const Box<K, T>& box) {
+    Reserve(h);
     BP_ASSERT(!live_flag_[h]);
     boxes_[h] = box;
     live_flag_[h] = 1;
@@ -549,6 +673,7 @@ class SegmentedSapCore {
   size_t tests_ = 0;
   size_t r_set_entries_ = 0;
   bool global_ = false;
+  bool rebuilt_ = false;
 };
 
 }  // namespace detail
