@@ -13,11 +13,11 @@ namespace bp {
 /// Why a call was refused.
 enum class StatusCode {
   kOk = 0,
-  kInvalidArgument,  ///< a bad value: NaN, infinity, lo > hi, bad parameter
-  kAlreadyExists,    ///< insert of a key that is present
-  kNotFound,         ///< update or erase of a key that is absent
+  kInvalidArgument,    ///< a bad value: NaN, infinity, lo > hi, bad parameter
+  kAlreadyExists,      ///< insert of a key that is present
+  kNotFound,           ///< update or erase of a key that is absent
   kResourceExhausted,  ///< the engine holds as many objects as its handles can address
-  kInternal,         ///< a broken invariant (found by Validate)
+  kInternal,           ///< a broken invariant (found by Validate)
 };
 
 /// Name of a code, e.g. "InvalidArgument".
