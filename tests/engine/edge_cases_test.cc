@@ -35,9 +35,22 @@ class EdgeCaseTest : public ::testing::Test {
     }
     return b;
   }
+  // A cube [lo, lo + e] with lo drawn below `range`, then e below `extent` (in that order).
+  static BoxType RandomCube(std::mt19937_64& rng, uint64_t range, uint64_t extent) {
+    T lo = static_cast<T>(rng() % range);
+    return Cube(lo, static_cast<T>(lo + static_cast<T>(rng() % extent)));
+  }
   void Query() {
     sink_.Clear();
     engine_->Query(sink_);
+  }
+  // Queries the engine and the model; both event lists must be equal.
+  void QueryAndCompare(ModelOracle<K, T>& model) {
+    Query();
+    Pairs collides, uncollides;
+    model.Query(&collides, &uncollides);
+    ASSERT_EQ(sink_.collides, collides);
+    ASSERT_EQ(sink_.uncollides, uncollides);
   }
   void Insert(uint64_t key, const BoxType& b) { ASSERT_TRUE(engine_->Insert(key, b).ok()); }
   void Update(uint64_t key, const BoxType& b) { ASSERT_TRUE(engine_->Update(key, b).ok()); }
@@ -201,20 +214,16 @@ TYPED_TEST_SUITE(SegmentedSapTinyEdge, SapTinyEdgeShapes);
     auto& e = *this->engine_;                                                                     \
     std::mt19937_64 rng(99);                                                                      \
     ModelOracle<TestFixture::K, Coord> model;                                                     \
-    Pairs collides, uncollides;                                                                   \
     for (int round = 0; round < 6; ++round) {                                                     \
       /* Fill with 300 boxes on few coordinates, then erase nearly all. */                        \
       for (uint64_t k = 0; k < 300; ++k) {                                                        \
-        Coord lo = static_cast<Coord>(rng() % 50);                                                \
-        auto b = TestFixture::Cube(lo, static_cast<Coord>(lo + static_cast<Coord>(rng() % 4)));   \
+        auto b = TestFixture::RandomCube(rng, 50, 4);                                             \
         uint64_t key = static_cast<uint64_t>(round) * 1000 + k;                                   \
         this->Insert(key, b);                                                                     \
         model.boxes()[key] = b;                                                                   \
       }                                                                                           \
-      this->Query();                                                                              \
-      model.Query(&collides, &uncollides);                                                        \
-      ASSERT_EQ(this->sink_.collides, collides);                                                  \
-      ASSERT_EQ(this->sink_.uncollides, uncollides);                                              \
+      this->QueryAndCompare(model);                                                               \
+      if (this->HasFatalFailure()) return;                                                        \
       size_t full_chunks = e.GetStats().chunks;                                                   \
       for (auto it = model.boxes().begin(); it != model.boxes().end();) {                         \
         if (rng() % 10 != 0) {                                                                    \
@@ -224,10 +233,8 @@ TYPED_TEST_SUITE(SegmentedSapTinyEdge, SapTinyEdgeShapes);
           ++it;                                                                                   \
         }                                                                                         \
       }                                                                                           \
-      this->Query();                                                                              \
-      model.Query(&collides, &uncollides);                                                        \
-      ASSERT_EQ(this->sink_.uncollides, uncollides);                                              \
-      ASSERT_EQ(this->sink_.collides, collides);                                                  \
+      this->QueryAndCompare(model);                                                               \
+      if (this->HasFatalFailure()) return;                                                        \
       ASSERT_EQ(e.Size(), model.boxes().size());                                                  \
       if (e.Name() == "segmented_sap") { /* chunks split while filling, merged while emptying */  \
         EXPECT_GE(full_chunks, static_cast<size_t>(TestFixture::K) * 600u / 32u);                 \
@@ -238,54 +245,46 @@ TYPED_TEST_SUITE(SegmentedSapTinyEdge, SapTinyEdgeShapes);
 
 // One frame that moves, erases and inserts more objects than are live: SegmentedSap takes its
 // bulk-load path, which must report exactly the same events as everybody else.
-#define BP_BULK_CASE(Suite)                                                                 \
-  TYPED_TEST(Suite, BulkFrameWithMovesAndErases) {                                          \
-    using Coord = typename TestFixture::T;                                                  \
-    auto& e = *this->engine_;                                                               \
-    std::mt19937_64 rng(7);                                                                 \
-    ModelOracle<TestFixture::K, Coord> model;                                               \
-    Pairs collides, uncollides;                                                             \
-    auto random_box = [&] {                                                                 \
-      Coord lo = static_cast<Coord>(rng() % 40);                                            \
-      return TestFixture::Cube(lo, static_cast<Coord>(lo + static_cast<Coord>(rng() % 5))); \
-    };                                                                                      \
-    for (uint64_t k = 0; k < 100; ++k) {                                                    \
-      auto b = random_box();                                                                \
-      this->Insert(k, b);                                                                   \
-      model.boxes()[k] = b;                                                                 \
-    }                                                                                       \
-    for (int frame = 0; frame < 3; ++frame) {                                               \
-      this->Query();                                                                        \
-      model.Query(&collides, &uncollides);                                                  \
-      ASSERT_EQ(this->sink_.collides, collides);                                            \
-      ASSERT_EQ(this->sink_.uncollides, uncollides);                                        \
-      uint64_t base = 1000 * static_cast<uint64_t>(frame + 1);                              \
-      for (uint64_t k = 0; k < 30; ++k) { /* teleports */                                   \
-        auto it = model.boxes().begin();                                                    \
-        std::advance(it, static_cast<long>(rng() % model.boxes().size()));                  \
-        auto b = random_box();                                                              \
-        this->Update(it->first, b);                                                         \
-        it->second = b;                                                                     \
-      }                                                                                     \
-      for (uint64_t k = 0; k < 20; ++k) { /* erases */                                      \
-        auto it = model.boxes().begin();                                                    \
-        std::advance(it, static_cast<long>(rng() % model.boxes().size()));                  \
-        ASSERT_TRUE(e.Erase(it->first).ok());                                               \
-        model.boxes().erase(it);                                                            \
-      }                                                                                     \
-      for (uint64_t k = 0, n = model.boxes().size() + 10; k < n; ++k) { /* burst */         \
-        auto b = random_box();                                                              \
-        this->Insert(base + k, b);                                                          \
-        model.boxes()[base + k] = b;                                                        \
-      }                                                                                     \
-    }                                                                                       \
-    this->Query();                                                                          \
-    model.Query(&collides, &uncollides);                                                    \
-    ASSERT_EQ(this->sink_.collides, collides);                                              \
-    ASSERT_EQ(this->sink_.uncollides, uncollides);                                          \
-    if (e.Name() == "segmented_sap") {                                                      \
-      EXPECT_TRUE(e.GetStats().rebuilt);                                                    \
-    }                                                                                       \
+#define BP_BULK_CASE(Suite)                                                         \
+  TYPED_TEST(Suite, BulkFrameWithMovesAndErases) {                                  \
+    using Coord = typename TestFixture::T;                                          \
+    auto& e = *this->engine_;                                                       \
+    std::mt19937_64 rng(7);                                                         \
+    ModelOracle<TestFixture::K, Coord> model;                                       \
+    auto random_box = [&] { return TestFixture::RandomCube(rng, 40, 5); };          \
+    for (uint64_t k = 0; k < 100; ++k) {                                            \
+      auto b = random_box();                                                        \
+      this->Insert(k, b);                                                           \
+      model.boxes()[k] = b;                                                         \
+    }                                                                               \
+    for (int frame = 0; frame < 3; ++frame) {                                       \
+      this->QueryAndCompare(model);                                                 \
+      if (this->HasFatalFailure()) return;                                          \
+      uint64_t base = 1000 * static_cast<uint64_t>(frame + 1);                      \
+      for (uint64_t k = 0; k < 30; ++k) { /* teleports */                           \
+        auto it = model.boxes().begin();                                            \
+        std::advance(it, static_cast<long>(rng() % model.boxes().size()));          \
+        auto b = random_box();                                                      \
+        this->Update(it->first, b);                                                 \
+        it->second = b;                                                             \
+      }                                                                             \
+      for (uint64_t k = 0; k < 20; ++k) { /* erases */                              \
+        auto it = model.boxes().begin();                                            \
+        std::advance(it, static_cast<long>(rng() % model.boxes().size()));          \
+        ASSERT_TRUE(e.Erase(it->first).ok());                                       \
+        model.boxes().erase(it);                                                    \
+      }                                                                             \
+      for (uint64_t k = 0, n = model.boxes().size() + 10; k < n; ++k) { /* burst */ \
+        auto b = random_box();                                                      \
+        this->Insert(base + k, b);                                                  \
+        model.boxes()[base + k] = b;                                                \
+      }                                                                             \
+    }                                                                               \
+    this->QueryAndCompare(model);                                                   \
+    if (this->HasFatalFailure()) return;                                            \
+    if (e.Name() == "segmented_sap") {                                              \
+      EXPECT_TRUE(e.GetStats().rebuilt);                                            \
+    }                                                                               \
   }
 
 BP_BULK_CASE(BruteForceEdge)

@@ -526,13 +526,7 @@ class SegmentedSapCore {
   // by sweeping axis 0, and reconciles the tracker with it, so events stay the exact difference.
   void Rebuild(std::span<const HandleBox<K, T>> updates, std::span<const HandleBox<K, T>> inserts) {
     for (const auto& [h, box] : updates) boxes_[h] = box;
-    for (const auto& [h, box] : inserts) {
-      Reserve(h);
-      BP_ASSERT(!live_flag_[h]);
-      boxes_[h] = box;
-      live_flag_[h] = 1;
-      ++live_;
-    }
+    for (const auto& [h, box] : inserts) MakeLive(h, box);
     std::vector<uint32_t> live;
     live.reserve(live_);
     for (uint32_t h = 0; h < live_flag_.size(); ++h) {
@@ -630,12 +624,17 @@ class SegmentedSapCore {
     }
   }
 
-  void InsertObject(uint32_t h, const Box<K, T>& box) {
+  // Records a new live object's box (its extrema are placed by the caller).
+  void MakeLive(uint32_t h, const Box<K, T>& box) {
     Reserve(h);
     BP_ASSERT(!live_flag_[h]);
     boxes_[h] = box;
     live_flag_[h] = 1;
     ++live_;
+  }
+
+  void InsertObject(uint32_t h, const Box<K, T>& box) {
+    MakeLive(h, box);
     for (size_t a = 0; a < kAxes; ++a) {
       InsertExtremum(a, Ext{box.lo[a], 2 * h});
       InsertExtremum(a, Ext{box.hi[a], 2 * h + 1});

@@ -155,7 +155,6 @@ class KeyedEngine final : public Broadphase<Core::kDim, typename Core::Coord, Ke
       slot.pending = Pending::kNone;
       if (!slot.live) free_.push_back(h);
     }
-    live_count_ = live_count_ + inserts_.size() - erases_.size();
     queue_.clear();
 
     std::sort(uncollides_.begin(), uncollides_.end());
@@ -179,12 +178,12 @@ class KeyedEngine final : public Broadphase<Core::kDim, typename Core::Coord, Ke
     });
   }
 
-  size_t Size() const override { return live_count_; }
+  size_t Size() const override { return core_.live(); }
 
   Stats GetStats() const override {
     Stats s;
     core_.FillStats(&s);
-    s.objects = live_count_;
+    s.objects = core_.live();
     s.overlaps = core_.tracker().overlaps();
     s.inserts = inserts_.size();
     s.updates = updates_.size();
@@ -205,7 +204,7 @@ class KeyedEngine final : public Broadphase<Core::kDim, typename Core::Coord, Ke
       mapped += (slot.live || slot.pending == Pending::kInsert) ? 1 : 0;
       queued += slot.queued ? 1 : 0;
     }
-    if (live != live_count_ || live != core_.live()) return fail("live counts disagree");
+    if (live != core_.live()) return fail("live counts disagree");
     if (mapped != handle_of_.size()) return fail("key map size differs from mapped slots");
     if (queued != queue_.size()) return fail("queue differs from queued flags");
     for (const auto& [key, h] : handle_of_) {
@@ -265,7 +264,6 @@ class KeyedEngine final : public Broadphase<Core::kDim, typename Core::Coord, Ke
   std::unordered_map<Key, uint32_t> handle_of_;
   std::vector<uint32_t> free_;
   std::vector<uint32_t> queue_;
-  size_t live_count_ = 0;
   // Per-query buffers, kept to reuse their allocations.
   std::vector<uint32_t> erases_;
   std::vector<HandleBox<K, T>> updates_;
