@@ -18,6 +18,9 @@ enum class StatusCode {
   kNotFound,           ///< update or erase of a key that is absent
   kResourceExhausted,  ///< the engine holds as many objects as its handles can address
   kInternal,           ///< a broken invariant (found by Validate)
+  kUnavailable,        ///< a service or transport cannot be reached or failed (DDS, files)
+  kDeadlineExceeded,   ///< a wait or a write timed out
+  kDataLoss,           ///< truncated or corrupt data (recordings, payloads)
 };
 
 /// Name of a code, e.g. "InvalidArgument".

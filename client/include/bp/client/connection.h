@@ -1,0 +1,81 @@
+// bp::client::Connection: one DDS participant joined to a broadphase deployment (domain,
+// partition, topic names) and the QoS every party uses on each topic.
+//
+// QoS (docs/PROTOCOL.md explains the choice):
+//  - updates: reliable, KEEP_ALL, the daemon's reader bounded to `update_queue` samples. A
+//    producer faster than the daemon blocks in dds_write (back-pressure) for at most
+//    `write_timeout`, then gets DeadlineExceeded: updates are never dropped silently.
+//  - events: reliable, KEEP_LAST `event_history` at the daemon, KEEP_LAST `depth` at each
+//    subscriber. A slow subscriber loses the oldest batches (it sees a gap in `sequence`)
+//    instead of growing memory or stalling the daemon.
+//  - status: reliable, TRANSIENT_LOCAL, KEEP_LAST 16: a late joiner gets the latest reports.
+//
+// Thread safety: a Connection may be shared by publishers and subscribers on several threads.
+#pragma once
+
+#include <chrono>
+#include <cstdint>
+#include <memory>
+#include <string>
+
+#include "bp/dds/dds.h"
+#include "bp/status.h"
+
+namespace bp::client {
+
+/// Topic names of one deployment.
+struct TopicNames {
+  std::string updates = "bp_updates";
+  std::string events = "bp_events";
+  std::string status = "bp_status";
+};
+
+/// Where a deployment lives.
+struct ConnectionOptions {
+  uint32_t domain = 0;      ///< DDS domain id
+  std::string cyclone_xml;  ///< Cyclone configuration text; "" = Cyclone's default
+  std::string partition;    ///< "" = the default partition
+  TopicNames topics;
+};
+
+/// Reads a whole text file (a Cyclone XML configuration, say). NotFound names the path.
+Status ReadTextFile(const std::string& path, std::string* out);
+
+/// The QoS of each topic (see the header comment).
+namespace qos {
+/// Updates topic, writer side (producers).
+void UpdatesWriter(dds_qos_t* qos, std::chrono::milliseconds write_timeout);
+/// Updates topic, reader side (the daemon), bounded to queue samples.
+void UpdatesReader(dds_qos_t* qos, int32_t queue);
+/// Events topic, writer side (the daemon).
+void EventsWriter(dds_qos_t* qos, int32_t history, std::chrono::milliseconds write_timeout);
+/// Events topic, reader side (subscribers), keeping the newest depth batches.
+void EventsReader(dds_qos_t* qos, int32_t depth);
+/// Status topic, writer side (the daemon).
+void StatusWriter(dds_qos_t* qos, std::chrono::milliseconds write_timeout);
+/// Status topic, reader side.
+void StatusReader(dds_qos_t* qos, int32_t depth);
+}  // namespace qos
+
+/// A participant and the three topics of a deployment.
+class Connection {
+ public:
+  /// Joins the deployment described by options.
+  static Status Open(const ConnectionOptions& options, std::unique_ptr<Connection>* out);
+  dds::Participant& participant() { return *participant_; }
+  const dds::Participant& participant() const { return *participant_; }
+  dds_entity_t updates_topic() const { return updates_; }
+  dds_entity_t events_topic() const { return events_; }
+  dds_entity_t status_topic() const { return status_; }
+  const ConnectionOptions& options() const { return options_; }
+
+ private:
+  Connection() = default;
+  ConnectionOptions options_;
+  std::unique_ptr<dds::Participant> participant_;
+  dds_entity_t updates_ = 0;
+  dds_entity_t events_ = 0;
+  dds_entity_t status_ = 0;
+};
+
+}  // namespace bp::client

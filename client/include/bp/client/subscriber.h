@@ -1,0 +1,55 @@
+// bp::client::Subscriber<Msg>: receives EventBatch or Status messages from the daemon.
+//
+// Poll waits up to a timeout for messages, parses them and appends them to the output. A
+// payload that does not parse is counted (malformed()) and skipped, never handed out. Gaps in
+// the envelope sequence (a slow subscriber's KEEP_LAST history overwrote batches) are counted
+// in gaps() so the application can tell that it missed events.
+//
+// Thread safety: one thread at a time per subscriber.
+#pragma once
+
+#include <chrono>
+#include <cstdint>
+#include <memory>
+#include <vector>
+
+#include "broadphase.pb.h"
+
+#include "bp/client/connection.h"
+#include "bp/status.h"
+
+namespace bp::client {
+
+template <class Msg>
+class Subscriber {
+ public:
+  /// A subscriber on the events topic (Msg = wire::EventBatch) or the status topic
+  /// (Msg = wire::DaemonStatus), keeping the newest depth messages until polled.
+  static Status Create(Connection& connection, int32_t depth, std::unique_ptr<Subscriber>* out);
+  /// Waits until the daemon's writer has matched.
+  Status WaitForDaemon(std::chrono::milliseconds timeout) const {
+    return reader_.WaitForWriters(1, timeout);
+  }
+  /// Appends the messages available within timeout (possibly none) to out.
+  Status Poll(std::chrono::milliseconds timeout, std::vector<Msg>* out);
+  /// Payloads that did not parse.
+  uint64_t malformed() const { return malformed_; }
+  /// Envelopes missing between consecutive received sequence numbers.
+  uint64_t gaps() const { return gaps_; }
+
+ private:
+  Subscriber() = default;
+  dds::Reader reader_;
+  dds::WaitSet waitset_;
+  uint64_t last_seq_ = 0;
+  uint64_t malformed_ = 0;
+  uint64_t gaps_ = 0;
+};
+
+using EventSubscriber = Subscriber<wire::EventBatch>;
+using StatusSubscriber = Subscriber<wire::DaemonStatus>;
+
+extern template class Subscriber<wire::EventBatch>;
+extern template class Subscriber<wire::DaemonStatus>;
+
+}  // namespace bp::client

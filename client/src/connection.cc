@@ -1,0 +1,72 @@
+#include "bp/client/connection.h"
+
+#include <fstream>
+#include <sstream>
+
+namespace bp::client {
+namespace {
+dds_duration_t Ms(std::chrono::milliseconds d) { return DDS_MSECS(d.count()); }
+}  // namespace
+
+Status ReadTextFile(const std::string& path, std::string* out) {
+  std::ifstream in(path, std::ios::binary);
+  if (!in) return Status(StatusCode::kNotFound, "cannot open '" + path + "'");
+  std::ostringstream text;
+  text << in.rdbuf();
+  if (in.bad()) return Status(StatusCode::kUnavailable, "cannot read '" + path + "'");
+  *out = text.str();
+  return Status::Ok();
+}
+
+namespace qos {
+void UpdatesWriter(dds_qos_t* qos, std::chrono::milliseconds write_timeout) {
+  dds_qset_reliability(qos, DDS_RELIABILITY_RELIABLE, Ms(write_timeout));
+  dds_qset_history(qos, DDS_HISTORY_KEEP_ALL, 0);
+}
+void UpdatesReader(dds_qos_t* qos, int32_t queue) {
+  dds_qset_reliability(qos, DDS_RELIABILITY_RELIABLE, DDS_SECS(1));
+  dds_qset_history(qos, DDS_HISTORY_KEEP_ALL, 0);
+  dds_qset_resource_limits(qos, queue, DDS_LENGTH_UNLIMITED, DDS_LENGTH_UNLIMITED);
+}
+void EventsWriter(dds_qos_t* qos, int32_t history, std::chrono::milliseconds write_timeout) {
+  dds_qset_reliability(qos, DDS_RELIABILITY_RELIABLE, Ms(write_timeout));
+  dds_qset_history(qos, DDS_HISTORY_KEEP_LAST, history);
+}
+void EventsReader(dds_qos_t* qos, int32_t depth) {
+  dds_qset_reliability(qos, DDS_RELIABILITY_RELIABLE, DDS_SECS(1));
+  dds_qset_history(qos, DDS_HISTORY_KEEP_LAST, depth);
+}
+void StatusWriter(dds_qos_t* qos, std::chrono::milliseconds write_timeout) {
+  dds_qset_reliability(qos, DDS_RELIABILITY_RELIABLE, Ms(write_timeout));
+  dds_qset_durability(qos, DDS_DURABILITY_TRANSIENT_LOCAL);
+  dds_qset_history(qos, DDS_HISTORY_KEEP_LAST, 16);
+}
+void StatusReader(dds_qos_t* qos, int32_t depth) {
+  dds_qset_reliability(qos, DDS_RELIABILITY_RELIABLE, DDS_SECS(1));
+  dds_qset_durability(qos, DDS_DURABILITY_TRANSIENT_LOCAL);
+  dds_qset_history(qos, DDS_HISTORY_KEEP_LAST, depth);
+}
+}  // namespace qos
+
+Status Connection::Open(const ConnectionOptions& options, std::unique_ptr<Connection>* out) {
+  std::unique_ptr<Connection> c(new Connection());
+  c->options_ = options;
+  if (Status s = dds::Participant::Create(options.domain, options.cyclone_xml, options.partition,
+                                          &c->participant_);
+      !s.ok()) {
+    return s;
+  }
+  if (Status s = c->participant_->CreateTopic(options.topics.updates, &c->updates_); !s.ok()) {
+    return s;
+  }
+  if (Status s = c->participant_->CreateTopic(options.topics.events, &c->events_); !s.ok()) {
+    return s;
+  }
+  if (Status s = c->participant_->CreateTopic(options.topics.status, &c->status_); !s.ok()) {
+    return s;
+  }
+  *out = std::move(c);
+  return Status::Ok();
+}
+
+}  // namespace bp::client

@@ -1,0 +1,62 @@
+#include "bp/client/subscriber.h"
+
+#include <type_traits>
+
+namespace bp::client {
+
+template <class Msg>
+Status Subscriber<Msg>::Create(Connection& connection, int32_t depth,
+                               std::unique_ptr<Subscriber>* out) {
+  std::unique_ptr<Subscriber> s(new Subscriber());
+  dds::Qos qos;
+  dds_entity_t topic = 0;
+  if constexpr (std::is_same_v<Msg, wire::EventBatch>) {
+    qos::EventsReader(qos.get(), depth);
+    topic = connection.events_topic();
+  } else {
+    qos::StatusReader(qos.get(), depth);
+    topic = connection.status_topic();
+  }
+  if (Status st = dds::Reader::Create(connection.participant(), topic, qos, &s->reader_);
+      !st.ok()) {
+    return st;
+  }
+  if (Status st = dds::WaitSet::Create(connection.participant(), &s->waitset_); !st.ok()) {
+    return st;
+  }
+  if (Status st = s->waitset_.Attach(s->reader_); !st.ok()) return st;
+  *out = std::move(s);
+  return Status::Ok();
+}
+
+template <class Msg>
+Status Subscriber<Msg>::Poll(std::chrono::milliseconds timeout, std::vector<Msg>* out) {
+  const auto deadline = std::chrono::steady_clock::now() + timeout;
+  for (;;) {
+    size_t taken = 0;
+    Status st = reader_.Take(
+        256,
+        [&](const dds::Received& r) {
+          if (last_seq_ != 0 && r.seq > last_seq_ + 1) gaps_ += r.seq - last_seq_ - 1;
+          if (r.seq > last_seq_) last_seq_ = r.seq;
+          Msg msg;
+          if (!msg.ParseFromArray(r.payload.data(), static_cast<int>(r.payload.size()))) {
+            ++malformed_;
+            return;
+          }
+          out->push_back(std::move(msg));
+        },
+        &taken);
+    if (!st.ok()) return st;
+    if (taken > 0) return Status::Ok();
+    const auto left = deadline - std::chrono::steady_clock::now();
+    if (left <= std::chrono::nanoseconds(0)) return Status::Ok();
+    int triggered = 0;
+    if (Status w = waitset_.Wait(left, &triggered); !w.ok()) return w;
+  }
+}
+
+template class Subscriber<wire::EventBatch>;
+template class Subscriber<wire::DaemonStatus>;
+
+}  // namespace bp::client

@@ -1,0 +1,398 @@
+#include "config.h"
+
+#include <algorithm>
+#include <cerrno>
+#include <cstdio>
+#include <exception>
+#include <filesystem>
+#include <memory>
+#include <string>
+#include <system_error>
+#include <utility>
+
+#include "yaml_reader.h"
+#include <yaml-cpp/yaml.h>
+
+namespace bp::service {
+namespace {
+
+using detail::Field;
+using detail::NumberRange;
+using detail::YamlReader;
+
+constexpr std::array<std::string_view, 5> kSections{"engine", "dds", "frames", "limits", "logging"};
+constexpr std::array<std::string_view, 6> kEngineKeys{"algorithm", "dimension", "coordinate",
+                                                      "cell_size", "threads",   "margin"};
+constexpr std::array<std::string_view, 7> kDdsKeys{
+    "domain",           "cyclone_config", "partition",   "topics",
+    "write_timeout_ms", "event_history",  "update_queue"};
+constexpr std::array<std::string_view, 3> kTopicKeys{"updates", "events", "status"};
+constexpr std::array<std::string_view, 2> kFramesKeys{"boundary", "tick_ms"};
+constexpr std::array<std::string_view, 5> kLimitsKeys{"max_batch_bytes", "max_batch_items",
+                                                      "max_objects", "max_pairs_per_event_batch",
+                                                      "max_rejections_reported"};
+constexpr std::array<std::string_view, 3> kLoggingKeys{"level", "summary_interval_s", "file"};
+
+// Indexed by the enums' values.
+constexpr std::array<std::string_view, 3> kCoordinateNames{"float", "double", "int32"};
+constexpr std::array<std::string_view, 2> kBoundaryNames{"end_of_frame", "tick"};
+
+constexpr uint32_t kMaxDomain = 232;
+constexpr int kMaxThreads = 256;
+constexpr int kMaxWriteTimeoutMs = 60000;
+constexpr int kMaxQueueDepth = 100000;
+constexpr double kMaxTickMs = 60000;
+constexpr double kMaxSummaryIntervalS = 86400;
+constexpr uint64_t kMinBatchBytes = 64;
+constexpr uint64_t kU64Max = std::numeric_limits<uint64_t>::max();
+// A configuration file is a few kilobytes; refuse to slurp a device or a huge file by mistake.
+constexpr size_t kMaxConfigFileBytes = 1u << 20;
+
+// Engines that partition space into cells (none yet: the grid is issue 6).
+bool IsGridAlgorithm(std::string_view /*algorithm*/) { return false; }
+// Engines that keep fattened boxes and so accept a margin (none yet).
+bool SupportsMargin(std::string_view /*algorithm*/) { return false; }
+// Engines whose Query runs on more than one thread (none yet).
+bool IsMultiThreaded(std::string_view /*algorithm*/) { return false; }
+
+void ReadEngine(YamlReader& r, const Field& section, EngineConfig* e) {
+  r.ReadMapping(section, kEngineKeys, [&](std::string_view name, const Field& v) {
+    size_t index = 0;
+    if (name == "algorithm") {
+      if (r.ReadChoice(v, kAlgorithms, "algorithm", &index)) e->algorithm = kAlgorithms[index];
+    } else if (name == "dimension") {
+      r.ReadInt(v, 2, 3, &e->dimension);
+    } else if (name == "coordinate") {
+      if (r.ReadChoice(v, kCoordinateNames, "coordinate type", &index)) {
+        e->coordinate = static_cast<CoordinateType>(index);
+      }
+    } else if (name == "cell_size") {
+      if (v.node.IsScalar() && v.node.Scalar() == "auto") {
+        e->cell_size.reset();
+      } else {
+        double size = 0;
+        NumberRange positive{.min = 0, .min_inclusive = false};
+        if (r.ReadNumber(v, positive, &size, "'auto'")) e->cell_size = size;
+      }
+    } else if (name == "threads") {
+      r.ReadInt(v, 1, kMaxThreads, &e->threads);
+    } else if (name == "margin") {
+      r.ReadNumber(v, NumberRange{.min = 0}, &e->margin);
+    }
+  });
+}
+
+// DDS topic names: letters, digits, '_' and '/' (a subset of what DDS allows, safe everywhere).
+void ReadTopicName(YamlReader& r, const Field& v, std::string* out) {
+  std::string name;
+  if (!r.ReadString(v, &name)) return;
+  if (name.empty()) {
+    r.Error(v, "a topic name must not be empty");
+    return;
+  }
+  for (char c : name) {
+    bool ok = (c >= 'a' && c <= 'z') || (c >= 'A' && c <= 'Z') || (c >= '0' && c <= '9') ||
+              c == '_' || c == '/';
+    if (!ok) {
+      r.Error(v, "topic name " + YamlReader::Quote(name) +
+                     " has a character outside [A-Za-z0-9_/]: " +
+                     YamlReader::Quote(std::string_view(&c, 1)));
+      return;
+    }
+  }
+  *out = std::move(name);
+}
+
+void ReadDds(YamlReader& r, const Field& section, DdsConfig* d) {
+  r.ReadMapping(section, kDdsKeys, [&](std::string_view name, const Field& v) {
+    if (name == "domain") {
+      r.ReadInt(v, uint32_t{0}, kMaxDomain, &d->domain);
+    } else if (name == "cyclone_config") {
+      r.ReadString(v, &d->cyclone_config);
+    } else if (name == "partition") {
+      r.ReadString(v, &d->partition);
+    } else if (name == "topics") {
+      r.ReadMapping(v, kTopicKeys, [&](std::string_view topic, const Field& t) {
+        if (topic == "updates") ReadTopicName(r, t, &d->topics.updates);
+        if (topic == "events") ReadTopicName(r, t, &d->topics.events);
+        if (topic == "status") ReadTopicName(r, t, &d->topics.status);
+      });
+    } else if (name == "write_timeout_ms") {
+      r.ReadInt(v, 1, kMaxWriteTimeoutMs, &d->write_timeout_ms);
+    } else if (name == "event_history") {
+      r.ReadInt(v, 1, kMaxQueueDepth, &d->event_history);
+    } else if (name == "update_queue") {
+      r.ReadInt(v, 1, kMaxQueueDepth, &d->update_queue);
+    }
+  });
+}
+
+void ReadFrames(YamlReader& r, const Field& section, FramesConfig* f) {
+  r.ReadMapping(section, kFramesKeys, [&](std::string_view name, const Field& v) {
+    if (name == "boundary") {
+      size_t index = 0;
+      if (r.ReadChoice(v, kBoundaryNames, "frame boundary", &index)) {
+        f->boundary = static_cast<FrameBoundary>(index);
+      }
+    } else if (name == "tick_ms") {
+      r.ReadNumber(v, NumberRange{.min = 0, .min_inclusive = false, .max = kMaxTickMs},
+                   &f->tick_ms);
+    }
+  });
+}
+
+void ReadLimits(YamlReader& r, const Field& section, LimitsConfig* l) {
+  r.ReadMapping(section, kLimitsKeys, [&](std::string_view name, const Field& v) {
+    if (name == "max_batch_bytes") {
+      r.ReadUint64(v, kMinBatchBytes, kU64Max, &l->max_batch_bytes);
+    } else if (name == "max_batch_items") {
+      r.ReadUint64(v, 1, kU64Max, &l->max_batch_items);
+    } else if (name == "max_objects") {
+      r.ReadUint64(v, 1, kU64Max, &l->max_objects);
+    } else if (name == "max_pairs_per_event_batch") {
+      r.ReadUint64(v, 1, kU64Max, &l->max_pairs_per_event_batch);
+    } else if (name == "max_rejections_reported") {
+      r.ReadUint64(v, 0, kU64Max, &l->max_rejections_reported);
+    }
+  });
+}
+
+void ReadLogging(YamlReader& r, const Field& section, LoggingConfig* l) {
+  r.ReadMapping(section, kLoggingKeys, [&](std::string_view name, const Field& v) {
+    if (name == "level") {
+      size_t index = 0;
+      if (r.ReadChoice(v, kLogLevels, "log level", &index)) l->level = kLogLevels[index];
+    } else if (name == "summary_interval_s") {
+      r.ReadNumber(v, NumberRange{.min = 0, .max = kMaxSummaryIntervalS}, &l->summary_interval_s);
+    } else if (name == "file") {
+      r.ReadString(v, &l->file);
+    }
+  });
+}
+
+// Checks that involve more than one key, on the values as read (defaults where absent).
+void CheckCrossKeys(YamlReader& r, Config* c) {
+  const EngineConfig& e = c->engine;
+  auto margin_mark = r.MarkOf("engine.margin");
+  // An algorithm that failed to read leaves the default in place; do not judge other keys by it,
+  // except where every algorithm agrees.
+  if (!r.HasError("engine.algorithm")) {
+    std::string quoted = YamlReader::Quote(e.algorithm);
+    if (e.margin != 0 && margin_mark && !SupportsMargin(e.algorithm)) {
+      r.Error(*margin_mark, "engine.margin",
+              "algorithm " + quoted + " has no fattened boxes; only 0 (exact) is supported");
+    }
+    auto cell_mark = r.MarkOf("engine.cell_size");
+    if (e.cell_size && cell_mark && !IsGridAlgorithm(e.algorithm)) {
+      r.Warning(*cell_mark, "engine.cell_size",
+                "ignored by engine " + quoted + " (grid engines only)");
+    }
+    auto threads_mark = r.MarkOf("engine.threads");
+    if (e.threads > 1 && threads_mark && !IsMultiThreaded(e.algorithm)) {
+      r.Warning(*threads_mark, "engine.threads",
+                "engine " + quoted + " is single-threaded; threads = " + std::to_string(e.threads) +
+                    " has no effect");
+    }
+  } else if (e.margin != 0 && margin_mark &&
+             std::none_of(kAlgorithms.begin(), kAlgorithms.end(), SupportsMargin)) {
+    r.Error(*margin_mark, "engine.margin",
+            "no algorithm has fattened boxes yet; only 0 (exact) is supported");
+  }
+  // The shipped file spells out every default, tick_ms included; only a changed value means the
+  // author expected ticks.
+  auto tick_mark = r.MarkOf("frames.tick_ms");
+  if (c->frames.boundary == FrameBoundary::kEndOfFrame && tick_mark &&
+      c->frames.tick_ms != FramesConfig().tick_ms && !r.HasError("frames.boundary")) {
+    r.Warning(*tick_mark, "frames.tick_ms",
+              "ignored while frames.boundary is end_of_frame (used only with tick)");
+  }
+  const std::array<std::pair<std::string, const std::string*>, 3> topics{{
+      {"dds.topics.updates", &c->dds.topics.updates},
+      {"dds.topics.events", &c->dds.topics.events},
+      {"dds.topics.status", &c->dds.topics.status},
+  }};
+  for (size_t j = 1; j < topics.size(); ++j) {
+    for (size_t i = 0; i < j; ++i) {
+      if (*topics[i].second != *topics[j].second) continue;
+      // Point at the one that was written (the later one when both were).
+      bool j_written = r.MarkOf(topics[j].first).has_value();
+      const auto& [path, other] = j_written ? topics[j] : topics[i];
+      const std::string& other_path = j_written ? topics[i].first : topics[j].first;
+      r.Error(r.MarkOf(path).value_or(YAML::Mark::null_mark()), path,
+              "topic name " + YamlReader::Quote(*other) + " is also used by " + other_path +
+                  "; the topics must differ");
+      break;
+    }
+  }
+}
+
+// Relative paths in a file's configuration mean "next to that file".
+void ResolveAgainst(const std::filesystem::path& dir, std::string* path) {
+  if (path->empty() || dir.empty()) return;
+  std::filesystem::path p(*path);
+  if (p.is_relative()) *path = (dir / p).string();
+}
+
+std::string FormatNumber(double value) {
+  std::string text = YamlReader::FormatNumber(value);
+  // "5" would read back the same, but "5.0" tells a reader the key is not an integer.
+  if (text.find_first_of(".eEni") == std::string::npos) text += ".0";
+  return text;
+}
+
+// A string as a YAML scalar: plain when that is unambiguous, else double-quoted and escaped.
+std::string YamlString(std::string_view text) {
+  bool plain = !text.empty() && text != "null" && text != "Null" && text != "NULL";
+  for (size_t i = 0; plain && i < text.size(); ++i) {
+    char c = text[i];
+    bool letter = (c >= 'a' && c <= 'z') || (c >= 'A' && c <= 'Z') || c == '_' || c == '/';
+    bool other = (c >= '0' && c <= '9') || c == '.' || c == '-';
+    plain = letter || (i > 0 && other);
+  }
+  if (plain) return std::string(text);
+  static constexpr char kHex[] = "0123456789abcdef";
+  std::string out = "\"";
+  for (char c : text) {
+    auto byte = static_cast<unsigned char>(c);
+    if (c == '"' || c == '\\') {
+      out += '\\';
+      out += c;
+    } else if (byte < 0x20u || byte == 0x7Fu) {
+      out += "\\x";
+      out += kHex[byte >> 4];
+      out += kHex[byte & 0xFu];
+    } else {
+      out += c;
+    }
+  }
+  out += '"';
+  return out;
+}
+
+}  // namespace
+
+std::string_view CoordinateTypeName(CoordinateType type) {
+  auto index = static_cast<size_t>(type);
+  return index < kCoordinateNames.size() ? kCoordinateNames[index] : "unknown";
+}
+
+std::string_view FrameBoundaryName(FrameBoundary boundary) {
+  auto index = static_cast<size_t>(boundary);
+  return index < kBoundaryNames.size() ? kBoundaryNames[index] : "unknown";
+}
+
+Status ParseConfig(std::string_view yaml_text, std::string_view source, Config* out) {
+  if (out == nullptr) return Status(StatusCode::kInvalidArgument, "ParseConfig: out is null");
+  YamlReader r(source);
+  Config config;
+  try {
+    std::vector<YAML::Node> documents = YAML::LoadAll(std::string(yaml_text));
+    if (documents.size() > 1) {
+      r.Error(documents[1].Mark(), "",
+              "only one YAML document is allowed, found " + std::to_string(documents.size()));
+    }
+    if (!documents.empty()) {
+      Field root{"", documents[0], documents[0].Mark()};
+      r.ReadMapping(root, kSections, [&](std::string_view name, const Field& section) {
+        if (name == "engine") ReadEngine(r, section, &config.engine);
+        if (name == "dds") ReadDds(r, section, &config.dds);
+        if (name == "frames") ReadFrames(r, section, &config.frames);
+        if (name == "limits") ReadLimits(r, section, &config.limits);
+        if (name == "logging") ReadLogging(r, section, &config.logging);
+      });
+      CheckCrossKeys(r, &config);
+    }
+  } catch (const YAML::Exception& e) {
+    r.Error(e.mark, "YAML syntax error", e.msg);
+  } catch (const std::exception& e) {
+    r.Error(YAML::Mark::null_mark(), "(document)", std::string("cannot be read: ") + e.what());
+  }
+  if (r.failed()) {
+    std::string message;
+    for (const std::string& line : r.errors()) {
+      if (!message.empty()) message += '\n';
+      message += line;
+    }
+    return Status(StatusCode::kInvalidArgument, std::move(message));
+  }
+  config.source = std::string(source);
+  config.warnings = r.warnings();
+  *out = std::move(config);
+  return Status::Ok();
+}
+
+Status LoadConfigFile(const std::string& path, Config* out) {
+  if (out == nullptr) return Status(StatusCode::kInvalidArgument, "LoadConfigFile: out is null");
+  auto io_error = [&](int error, std::string_view what) {
+    return Status(error == ENOENT ? StatusCode::kNotFound : StatusCode::kInvalidArgument,
+                  "config file '" + path + "': " + std::string(what) +
+                      std::generic_category().message(error));
+  };
+  std::unique_ptr<std::FILE, int (*)(std::FILE*)> file(std::fopen(path.c_str(), "rb"),
+                                                       &std::fclose);
+  if (!file) return io_error(errno, "cannot open: ");
+  std::string text;
+  char buffer[16384];
+  while (text.size() <= kMaxConfigFileBytes) {
+    size_t n = std::fread(buffer, 1, sizeof(buffer), file.get());
+    if (n < sizeof(buffer) && std::ferror(file.get())) return io_error(errno, "cannot read: ");
+    text.append(buffer, n);
+    if (n < sizeof(buffer)) break;
+  }
+  if (text.size() > kMaxConfigFileBytes) {
+    return Status(StatusCode::kInvalidArgument, "config file '" + path + "': larger than " +
+                                                    std::to_string(kMaxConfigFileBytes) +
+                                                    " bytes; not a configuration file?");
+  }
+  Config config;
+  Status status = ParseConfig(text, path, &config);
+  if (!status.ok()) return status;
+  std::filesystem::path dir = std::filesystem::path(path).parent_path();
+  ResolveAgainst(dir, &config.dds.cyclone_config);
+  ResolveAgainst(dir, &config.logging.file);
+  *out = std::move(config);
+  return Status::Ok();
+}
+
+std::string ConfigToYaml(const Config& c) {
+  std::string y;
+  auto line = [&y](std::string_view indent, std::string_view key, std::string_view value) {
+    y.append(indent).append(key).append(": ").append(value).append("\n");
+  };
+  const std::string_view k1 = "  ";
+  const std::string_view k2 = "    ";
+  y += "engine:\n";
+  line(k1, "algorithm", YamlString(c.engine.algorithm));
+  line(k1, "dimension", std::to_string(c.engine.dimension));
+  line(k1, "coordinate", CoordinateTypeName(c.engine.coordinate));
+  line(k1, "cell_size", c.engine.cell_size ? FormatNumber(*c.engine.cell_size) : "auto");
+  line(k1, "threads", std::to_string(c.engine.threads));
+  line(k1, "margin", FormatNumber(c.engine.margin));
+  y += "dds:\n";
+  line(k1, "domain", std::to_string(c.dds.domain));
+  line(k1, "cyclone_config", YamlString(c.dds.cyclone_config));
+  line(k1, "partition", YamlString(c.dds.partition));
+  y += "  topics:\n";
+  line(k2, "updates", YamlString(c.dds.topics.updates));
+  line(k2, "events", YamlString(c.dds.topics.events));
+  line(k2, "status", YamlString(c.dds.topics.status));
+  line(k1, "write_timeout_ms", std::to_string(c.dds.write_timeout_ms));
+  line(k1, "event_history", std::to_string(c.dds.event_history));
+  line(k1, "update_queue", std::to_string(c.dds.update_queue));
+  y += "frames:\n";
+  line(k1, "boundary", FrameBoundaryName(c.frames.boundary));
+  line(k1, "tick_ms", FormatNumber(c.frames.tick_ms));
+  y += "limits:\n";
+  line(k1, "max_batch_bytes", std::to_string(c.limits.max_batch_bytes));
+  line(k1, "max_batch_items", std::to_string(c.limits.max_batch_items));
+  line(k1, "max_objects", std::to_string(c.limits.max_objects));
+  line(k1, "max_pairs_per_event_batch", std::to_string(c.limits.max_pairs_per_event_batch));
+  line(k1, "max_rejections_reported", std::to_string(c.limits.max_rejections_reported));
+  y += "logging:\n";
+  line(k1, "level", YamlString(c.logging.level));
+  line(k1, "summary_interval_s", FormatNumber(c.logging.summary_interval_s));
+  line(k1, "file", YamlString(c.logging.file));
+  return y;
+}
+
+}  // namespace bp::service

@@ -1,0 +1,151 @@
+// bp::service::Config: the configuration of the daemon `broadphased`, read from YAML
+// (`broadphased --config config/broadphased.yaml`; the shipped file lists every key with its
+// default). ParseConfig validates the whole document and reports every problem at once, one line
+// each with its position and dotted key; it never throws (yaml-cpp's exceptions are caught).
+//
+// Thread safety: the functions are reentrant (no shared state); a Config is a plain value.
+// Invariants of a Config returned by ParseConfig or LoadConfigFile:
+//  1. Every member is within the range written beside it; engine.algorithm is in kAlgorithms;
+//     logging.level is in kLogLevels; topic names are non-empty, of [A-Za-z0-9_/] only, and differ.
+//  2. engine.margin == 0 (no current algorithm fattens boxes).
+//  3. `warnings` lists accepted but ineffective settings, one line each, in the errors' format.
+#pragma once
+
+#include <array>
+#include <cstdint>
+#include <optional>
+#include <string>
+#include <string_view>
+#include <vector>
+
+#include "bp/status.h"
+
+namespace bp::service {
+
+/// When the daemon closes a frame (queries the engine and publishes its events).
+enum class FrameBoundary {
+  kEndOfFrame,  ///< when an update batch marked end-of-frame arrives
+  kTick,        ///< every frames.tick_ms milliseconds
+};
+
+/// The coordinate type of the engine's boxes.
+enum class CoordinateType { kFloat, kDouble, kInt32 };
+
+/// Engine algorithm names the daemon can build (the factory lives elsewhere).
+inline constexpr std::array<std::string_view, 2> kAlgorithms{"brute_force", "segmented_sap"};
+
+/// Valid values of logging.level, most verbose first.
+inline constexpr std::array<std::string_view, 7> kLogLevels{"trace", "debug",    "info", "warn",
+                                                            "error", "critical", "off"};
+
+/// The `engine` section: which broadphase the daemon runs.
+struct EngineConfig {
+  std::string algorithm = "segmented_sap";             ///< one of kAlgorithms
+  int dimension = 3;                                   ///< 2 or 3
+  CoordinateType coordinate = CoordinateType::kFloat;  ///< yaml: float | double | int32
+  std::optional<double> cell_size;  ///< yaml: "auto" (nullopt, default) or a positive finite number
+  int threads = 1;                  ///< >= 1, <= 256
+  double margin = 0.0;              ///< >= 0, finite
+
+  /// Member-wise equality.
+  bool operator==(const EngineConfig&) const = default;
+};
+
+/// The DDS topic names (`dds.topics`).
+struct TopicsConfig {
+  std::string updates = "bp_updates";  ///< update batches in
+  std::string events = "bp_events";    ///< event batches out
+  std::string status = "bp_status";    ///< daemon status out
+
+  /// Member-wise equality.
+  bool operator==(const TopicsConfig&) const = default;
+};
+
+/// The `dds` section: Cyclone DDS domain, configuration and QoS sizes.
+struct DdsConfig {
+  uint32_t domain = 0;  ///< 0..232 (Cyclone's valid domain ids)
+  /// Path to Cyclone XML; relative paths are resolved against the YAML file's directory by
+  /// LoadConfigFile; "" = Cyclone's own default (CYCLONEDDS_URI).
+  std::string cyclone_config = "cyclonedds-loopback.xml";
+  std::string partition;       ///< "" = default partition
+  TopicsConfig topics;         ///< non-empty, DDS topic-name characters only [A-Za-z0-9_/]
+  int write_timeout_ms = 100;  ///< 1..60000: max blocking time of dds_write
+  int event_history = 64;      ///< 1..100000: KEEP_LAST depth of the events writer
+  int update_queue = 256;      ///< 1..100000: resource limit (max samples) of the updates reader
+
+  /// Member-wise equality.
+  bool operator==(const DdsConfig&) const = default;
+};
+
+/// The `frames` section: when frames close.
+struct FramesConfig {
+  FrameBoundary boundary = FrameBoundary::kEndOfFrame;  ///< yaml: end_of_frame | tick
+  double tick_ms = 16.667;  ///< > 0, <= 60000; used when boundary is tick
+
+  /// Member-wise equality.
+  bool operator==(const FramesConfig&) const = default;
+};
+
+/// The `limits` section: bounds on untrusted input and on output sizes.
+struct LimitsConfig {
+  /// >= 64; an update batch payload larger than this is rejected whole.
+  uint64_t max_batch_bytes = 64ull << 20;
+  uint64_t max_batch_items = 1u << 20;  ///< >= 1; inserts + updates + erases in one batch
+  uint64_t max_objects = 1ull << 26;    ///< >= 1; inserts beyond this are rejected
+  /// >= 1; a frame's events are split into parts of at most this many pairs.
+  uint64_t max_pairs_per_event_batch = 1u << 20;
+  uint64_t max_rejections_reported = 100;  ///< per batch, individually; the rest are counted
+
+  /// Member-wise equality.
+  bool operator==(const LimitsConfig&) const = default;
+};
+
+/// The `logging` section.
+struct LoggingConfig {
+  std::string level = "info";       ///< trace | debug | info | warn | error | critical | off
+  double summary_interval_s = 5.0;  ///< > 0 (or 0 = no periodic summary), <= 86400
+  /// "" = stderr only; else also append to this file (resolved like dds.cyclone_config).
+  std::string file;
+
+  /// Member-wise equality.
+  bool operator==(const LoggingConfig&) const = default;
+};
+
+/// The whole configuration.
+struct Config {
+  EngineConfig engine;    ///< `engine`
+  DdsConfig dds;          ///< `dds`
+  FramesConfig frames;    ///< `frames`
+  LimitsConfig limits;    ///< `limits`
+  LoggingConfig logging;  ///< `logging`
+  /// Where it came from: the file path, or the name given to ParseConfig.
+  std::string source;
+  /// Accepted but noteworthy, e.g. "<source>:3:14: engine.cell_size: ignored by engine
+  /// 'segmented_sap' (grid engines only)".
+  std::vector<std::string> warnings;
+
+  /// Member-wise equality (source and warnings included).
+  bool operator==(const Config&) const = default;
+};
+
+/// Parses YAML text. On failure returns InvalidArgument whose message lists EVERY problem found,
+/// one per line, each as "<source>:<line>:<column>: <dotted.key>: <reason>" (line/column 1-based
+/// from yaml-cpp's Mark), and leaves *out unchanged. On success *out is the configuration with
+/// `source` set and its warnings. Empty text (or an empty document) is the default configuration.
+/// Relative paths are kept as written.
+Status ParseConfig(std::string_view yaml_text, std::string_view source, Config* out);
+
+/// Reads the file (NotFound / InvalidArgument with the path on I/O errors), parses it, and
+/// resolves the relative paths (dds.cyclone_config, logging.file) against the file's directory.
+Status LoadConfigFile(const std::string& path, Config* out);
+
+/// The effective configuration as YAML (every key, defaults included), for logging at start-up
+/// and `--print-config`. ParseConfig reads it back to an equal configuration.
+std::string ConfigToYaml(const Config& config);
+
+/// Canonical names: "float"/"double"/"int32".
+std::string_view CoordinateTypeName(CoordinateType type);
+/// Canonical names: "end_of_frame"/"tick".
+std::string_view FrameBoundaryName(FrameBoundary boundary);
+
+}  // namespace bp::service

@@ -1,0 +1,387 @@
+#include "daemon.h"
+
+#include <algorithm>
+
+#include <spdlog/spdlog.h>
+#include <unistd.h>
+
+#include "bp/client/update_publisher.h"
+
+namespace bp::service {
+namespace {
+
+using Clock = std::chrono::steady_clock;
+constexpr size_t kTakeBatch = 64;
+// Rejections logged one by one per batch; the rest are summarised in one line.
+constexpr size_t kRejectionsLogged = 10;
+
+std::string HostName() {
+  char name[256] = {};
+  if (gethostname(name, sizeof(name) - 1) != 0) return "unknown";
+  return name;
+}
+
+double Percentile(std::vector<double>& values, double p) {
+  if (values.empty()) return 0.0;
+  const size_t k =
+      std::min(values.size() - 1, static_cast<size_t>(p * static_cast<double>(values.size())));
+  std::nth_element(values.begin(), values.begin() + static_cast<std::ptrdiff_t>(k), values.end());
+  return values[k];
+}
+
+}  // namespace
+
+Status Daemon::Create(const Config& config, std::unique_ptr<Daemon>* out) {
+  std::unique_ptr<Daemon> d(new Daemon());
+  d->config_ = config;
+  d->daemon_name_ = HostName() + ":" + std::to_string(getpid());
+  if (Status s = MakeEngineHost(config.engine, config.limits.max_objects, &d->host_); !s.ok()) {
+    return s;
+  }
+  client::ConnectionOptions options;
+  options.domain = config.dds.domain;
+  options.partition = config.dds.partition;
+  options.topics = {config.dds.topics.updates, config.dds.topics.events, config.dds.topics.status};
+  if (!config.dds.cyclone_config.empty()) {
+    if (Status s = client::ReadTextFile(config.dds.cyclone_config, &options.cyclone_xml); !s.ok()) {
+      return Status(s.code(), "dds.cyclone_config: " + s.message());
+    }
+  }
+  if (Status s = client::Connection::Open(options, &d->connection_); !s.ok()) return s;
+  const auto timeout = std::chrono::milliseconds(config.dds.write_timeout_ms);
+  dds::Qos updates_qos;
+  client::qos::UpdatesReader(updates_qos.get(), config.dds.update_queue);
+  dds::Qos events_qos;
+  client::qos::EventsWriter(events_qos.get(), config.dds.event_history, timeout);
+  dds::Qos status_qos;
+  client::qos::StatusWriter(status_qos.get(), timeout);
+  auto& participant = d->connection_->participant();
+  if (Status s = dds::Reader::Create(participant, d->connection_->updates_topic(), updates_qos,
+                                     &d->updates_);
+      !s.ok()) {
+    return s;
+  }
+  if (Status s =
+          dds::Writer::Create(participant, d->connection_->events_topic(), events_qos, &d->events_);
+      !s.ok()) {
+    return s;
+  }
+  if (Status s =
+          dds::Writer::Create(participant, d->connection_->status_topic(), status_qos, &d->status_);
+      !s.ok()) {
+    return s;
+  }
+  if (Status s = dds::WaitSet::Create(participant, &d->waitset_); !s.ok()) return s;
+  if (Status s = d->waitset_.Attach(d->updates_); !s.ok()) return s;
+  *out = std::move(d);
+  return Status::Ok();
+}
+
+Daemon::~Daemon() = default;
+
+void Daemon::RequestStop() {
+  stop_.store(true);
+  waitset_.Wake();
+}
+
+Status Daemon::Run() {
+  spdlog::info(
+      "broadphased {}: engine {} ({}-D, {}), DDS domain {} partition '{}', topics {} / {} / {}, "
+      "frames on {}",
+      daemon_name_, host_->Name(), host_->Dimension(),
+      CoordinateTypeName(config_.engine.coordinate), config_.dds.domain, config_.dds.partition,
+      config_.dds.topics.updates, config_.dds.topics.events, config_.dds.topics.status,
+      FrameBoundaryName(config_.frames.boundary));
+  PublishStatus(wire::SERVING, false);
+  serving_.store(true);
+  interval_start_ = Clock::now();
+  const bool tick_mode = config_.frames.boundary == FrameBoundary::kTick;
+  const auto tick = std::chrono::duration_cast<Clock::duration>(
+      std::chrono::duration<double, std::milli>(config_.frames.tick_ms));
+  const bool summaries = config_.logging.summary_interval_s > 0;
+  const auto summary_every = std::chrono::duration_cast<Clock::duration>(
+      std::chrono::duration<double>(summaries ? config_.logging.summary_interval_s : 3600.0));
+  auto next_tick = Clock::now() + tick;
+  auto next_summary = Clock::now() + summary_every;
+
+  while (!stop_.load()) {
+    auto wake = next_summary;
+    if (tick_mode) wake = std::min(wake, next_tick);
+    const auto now = Clock::now();
+    int triggered = 0;
+    if (wake > now) {
+      if (Status s = waitset_.Wait(wake - now, &triggered); !s.ok()) {
+        spdlog::error("{}", s.ToString());
+        return s;
+      }
+    }
+    if (stop_.load()) break;
+    Drain(SIZE_MAX);
+    if (tick_mode && Clock::now() >= next_tick) {
+      RunFrame(0, 0, 0);
+      next_tick += tick;
+      // A frame longer than the tick: skip the missed ticks instead of bursting to catch up.
+      if (next_tick < Clock::now()) next_tick = Clock::now() + tick;
+    }
+    if (summaries && Clock::now() >= next_summary) {
+      Summary();
+      next_summary += summary_every;
+      if (next_summary < Clock::now()) next_summary = Clock::now() + summary_every;
+    }
+  }
+
+  // Stop: take what has already arrived (one bounded round, so a producer that keeps sending
+  // cannot hold the daemon up), finish the frame, publish its events, and let them be acked.
+  spdlog::info("stopping: finishing frame {}", frames_.load() + 1);
+  Drain(static_cast<size_t>(config_.dds.update_queue) / kTakeBatch + 1);
+  if (frame_dirty_) RunFrame(0, 0, 0);
+  if (Status s = events_.WaitForAcks(std::chrono::seconds(2)); !s.ok()) {
+    spdlog::warn("not every subscriber acknowledged the last events: {}", s.ToString());
+  }
+  if (summaries) Summary();
+  PublishStatus(wire::STOPPING, false);
+  (void)status_.WaitForAcks(std::chrono::milliseconds(500));
+  spdlog::info("stopped after {} frames, {} batches, {} rejected items", frames_.load(),
+               batches_total_.load(), rejected_total_.load());
+  serving_.store(false);
+  return Status::Ok();
+}
+
+void Daemon::Drain(size_t max_rounds) {
+  for (size_t round = 0; round < max_rounds; ++round) {
+    size_t taken = 0;
+    Status s = updates_.Take(
+        kTakeBatch, [this](const dds::Received& r) { ProcessPayload(r.payload, *r.info); }, &taken);
+    if (!s.ok()) {
+      spdlog::error("reading updates: {}", s.ToString());
+      return;
+    }
+    if (taken == 0) return;
+  }
+}
+
+bool Daemon::ClaimProducer(uint32_t producer, dds_instance_handle_t writer) {
+  auto [it, inserted] = claims_.try_emplace(producer, writer);
+  if (inserted || it->second == writer) return true;
+  // Another writer holds the id: it keeps it while it is alive (still matched).
+  const auto matched = updates_.MatchedWriterHandles();
+  if (std::find(matched.begin(), matched.end(), it->second) != matched.end()) return false;
+  spdlog::info("producer {}: its previous writer is gone; a new writer takes over the id",
+               producer);
+  it->second = writer;
+  return true;
+}
+
+void Daemon::ProcessPayload(std::span<const uint8_t> payload, const dds_sample_info_t& info) {
+  const auto start = Clock::now();
+  ++batches_total_;
+  ++interval_batches_;
+  const auto& limits = config_.limits;
+  auto batch_reject = [&](uint32_t producer, wire::RejectReason reason, std::string why) {
+    ReportRejection(producer, nullptr, Reject{wire::OP_BATCH, 0, 0, reason, std::move(why)});
+    FlushRejections();
+  };
+  if (payload.size() > limits.max_batch_bytes) {
+    batch_reject(
+        0, wire::OVERSIZE,
+        "batch of " + std::to_string(payload.size()) +
+            " bytes exceeds limits.max_batch_bytes = " + std::to_string(limits.max_batch_bytes));
+    return;
+  }
+  batch_.Clear();
+  if (!batch_.ParseFromArray(payload.data(), static_cast<int>(payload.size()))) {
+    batch_reject(
+        0, wire::MALFORMED,
+        "payload of " + std::to_string(payload.size()) + " bytes is not a valid UpdateBatch");
+    return;
+  }
+  const uint32_t producer = batch_.producer();
+  if (batch_.version() != wire::SCHEMA_VERSION_1) {
+    batch_reject(producer, wire::UNSUPPORTED_VERSION,
+                 "schema version " + std::to_string(static_cast<int>(batch_.version())) +
+                     " is not supported (this daemon speaks version 1)");
+    return;
+  }
+  if (producer == 0 || producer > 0xFFFF) {
+    batch_reject(producer, wire::BAD_PRODUCER,
+                 "producer id " + std::to_string(producer) + " is outside 1..65535");
+    return;
+  }
+  const uint64_t items = static_cast<uint64_t>(batch_.inserts().ids_size()) +
+                         static_cast<uint64_t>(batch_.updates().ids_size()) +
+                         static_cast<uint64_t>(batch_.erases_size());
+  if (items > limits.max_batch_items) {
+    batch_reject(producer, wire::OVERSIZE,
+                 "batch of " + std::to_string(items) + " items exceeds limits.max_batch_items = " +
+                     std::to_string(limits.max_batch_items));
+    return;
+  }
+  if (!ClaimProducer(producer, info.publication_handle)) {
+    batch_reject(producer, wire::PRODUCER_CONFLICT,
+                 "producer id " + std::to_string(producer) +
+                     " is in use by another live writer; give each producer its own id");
+    return;
+  }
+  uint64_t& last_seq = last_batch_seq_[producer];
+  if (batch_.batch_seq() != 0 && last_seq != 0 && batch_.batch_seq() != last_seq + 1) {
+    spdlog::warn("producer {}: batch_seq jumped from {} to {}", producer, last_seq,
+                 batch_.batch_seq());
+  }
+  last_seq = batch_.batch_seq();
+
+  ApplyCounts counts;
+  host_->Apply(
+      batch_, [&](Reject&& r) { ReportRejection(producer, &batch_, std::move(r)); }, &counts);
+  FlushRejections();
+  interval_updates_ += counts.inserts + counts.updates + counts.erases;
+  frame_dirty_ = true;
+  frame_work_ += Clock::now() - start;
+  if (config_.frames.boundary == FrameBoundary::kEndOfFrame && batch_.end_of_frame()) {
+    RunFrame(producer, batch_.frame(), batch_.sent_time_ns());
+  }
+}
+
+void Daemon::ReportRejection(uint32_t producer, const wire::UpdateBatch* batch, Reject&& r) {
+  ++rejected_total_;
+  ++interval_rejected_;
+  const size_t seen = pending_rejections_.size() + pending_not_listed_;
+  if (seen < kRejectionsLogged) {
+    spdlog::warn("rejected from producer {}{}: {}", producer,
+                 batch ? " frame " + std::to_string(batch->frame()) : std::string(), r.message);
+  }
+  if (pending_rejections_.size() >= config_.limits.max_rejections_reported) {
+    ++pending_not_listed_;
+    return;
+  }
+  wire::Rejection& out = pending_rejections_.emplace_back();
+  out.set_producer(producer);
+  if (batch) {
+    out.set_frame(batch->frame());
+    out.set_batch_seq(batch->batch_seq());
+  }
+  out.set_op(r.op);
+  out.set_index(r.index);
+  out.set_id(r.id);
+  out.set_reason(r.reason);
+  out.set_message(std::move(r.message));
+}
+
+void Daemon::FlushRejections() {
+  if (pending_rejections_.empty() && pending_not_listed_ == 0) return;
+  const uint64_t total = pending_rejections_.size() + pending_not_listed_;
+  if (total > kRejectionsLogged) {
+    spdlog::warn("... {} rejections in this batch in all ({} more not logged)", total,
+                 total - kRejectionsLogged);
+  }
+  PublishStatus(wire::SERVING, false);
+  pending_rejections_.clear();
+  pending_not_listed_ = 0;
+}
+
+void Daemon::RunFrame(uint32_t source_producer, uint64_t source_frame, uint64_t source_sent_ns) {
+  const auto start = Clock::now();
+  host_->Query(&uncollide_, &collide_);
+  const uint64_t frame = frames_.load() + 1;
+  // Pairs of the frame: uncollides then collides, split into parts of at most max pairs.
+  const size_t pairs = (uncollide_.size() + collide_.size()) / 2;
+  const size_t per_part = static_cast<size_t>(config_.limits.max_pairs_per_event_batch);
+  const size_t parts = std::max<size_t>(1, (pairs + per_part - 1) / per_part);
+  size_t next = 0;  // pair index over the concatenation
+  for (size_t part = 0; part < parts; ++part) {
+    event_msg_.Clear();
+    event_msg_.set_version(wire::SCHEMA_VERSION_1);
+    event_msg_.set_frame(frame);
+    event_msg_.set_sequence(++event_seq_);
+    event_msg_.set_part(static_cast<uint32_t>(part));
+    event_msg_.set_last_part(part + 1 == parts);
+    const size_t end = std::min(pairs, next + per_part);
+    const size_t n_unc = uncollide_.size() / 2;
+    for (; next < end; ++next) {
+      if (next < n_unc) {
+        event_msg_.add_uncollide(uncollide_[2 * next]);
+        event_msg_.add_uncollide(uncollide_[2 * next + 1]);
+      } else {
+        event_msg_.add_collide(collide_[2 * (next - n_unc)]);
+        event_msg_.add_collide(collide_[2 * (next - n_unc) + 1]);
+      }
+    }
+    event_msg_.set_source_producer(source_producer);
+    event_msg_.set_source_frame(source_frame);
+    event_msg_.set_source_sent_time_ns(source_sent_ns);
+    event_msg_.set_objects(host_->Objects());
+    event_msg_.set_overlaps(host_->Overlaps());
+    event_msg_.set_published_time_ns(client::WallClockNs());
+    buffer_.clear();
+    event_msg_.SerializeToString(&buffer_);
+    if (Status s = events_.Write(event_msg_.sequence(), buffer_); !s.ok()) {
+      ++event_write_failures_;
+      spdlog::error(
+          "frame {} part {}: events not delivered ({}); subscribers see a gap at "
+          "sequence {}",
+          frame, part, s.ToString(), event_msg_.sequence());
+    }
+  }
+  frames_.store(frame);
+  frame_dirty_ = false;
+  ++interval_frames_;
+  interval_events_ += pairs;
+  frame_work_ += Clock::now() - start;
+  frame_ms_.push_back(std::chrono::duration<double, std::milli>(frame_work_).count());
+  frame_work_ = std::chrono::nanoseconds(0);
+}
+
+void Daemon::PublishStatus(wire::Health health, bool with_interval) {
+  status_msg_.Clear();
+  status_msg_.set_version(wire::SCHEMA_VERSION_1);
+  status_msg_.set_health(health);
+  status_msg_.set_daemon(daemon_name_);
+  status_msg_.set_engine(host_->Name());
+  status_msg_.set_dim(static_cast<uint32_t>(host_->Dimension()));
+  status_msg_.set_coordinate(std::string(CoordinateTypeName(config_.engine.coordinate)));
+  status_msg_.set_time_ns(client::WallClockNs());
+  status_msg_.set_frame(frames_.load());
+  status_msg_.set_objects(host_->Objects());
+  status_msg_.set_overlaps(host_->Overlaps());
+  if (with_interval) *status_msg_.mutable_interval() = last_interval_;
+  for (auto& r : pending_rejections_) *status_msg_.add_rejections() = r;
+  status_msg_.set_rejections_not_listed(pending_not_listed_);
+  status_msg_.set_rejected_total(rejected_total_.load());
+  status_msg_.set_event_write_failures(event_write_failures_);
+  status_msg_.set_producers(static_cast<uint32_t>(claims_.size()));
+  buffer_.clear();
+  status_msg_.SerializeToString(&buffer_);
+  if (Status s = status_.Write(++status_seq_, buffer_); !s.ok()) {
+    spdlog::warn("status report not delivered: {}", s.ToString());
+  }
+}
+
+void Daemon::Summary() {
+  const auto now = Clock::now();
+  const double seconds = std::chrono::duration<double>(now - interval_start_).count();
+  wire::IntervalStats& st = last_interval_;
+  st.Clear();
+  st.set_seconds(seconds);
+  st.set_frames(interval_frames_);
+  st.set_batches(interval_batches_);
+  st.set_updates(interval_updates_);
+  st.set_events(interval_events_);
+  st.set_rejected(interval_rejected_);
+  st.set_frame_ms_p50(Percentile(frame_ms_, 0.50));
+  st.set_frame_ms_p99(Percentile(frame_ms_, 0.99));
+  st.set_frame_ms_max(frame_ms_.empty() ? 0.0
+                                        : *std::max_element(frame_ms_.begin(), frame_ms_.end()));
+  const double per_s = seconds > 0 ? 1.0 / seconds : 0.0;
+  spdlog::info(
+      "objects {} | {:.1f} frames/s | {:.0f} updates/s | {:.0f} events/s | frame p50 "
+      "{:.3f} ms p99 {:.3f} ms | rejected {}",
+      host_->Objects(), static_cast<double>(interval_frames_) * per_s,
+      static_cast<double>(interval_updates_) * per_s, static_cast<double>(interval_events_) * per_s,
+      st.frame_ms_p50(), st.frame_ms_p99(), interval_rejected_);
+  PublishStatus(wire::SERVING, true);
+  interval_start_ = now;
+  frame_ms_.clear();
+  interval_frames_ = interval_batches_ = interval_updates_ = interval_events_ = interval_rejected_ =
+      0;
+}
+
+}  // namespace bp::service

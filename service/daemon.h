@@ -1,0 +1,111 @@
+// bp::service::Daemon: broadphased's loop. Updates in (DDS), engine, events out (DDS).
+//
+// One thread runs Run(): it waits on the updates reader, validates and applies each batch
+// through the EngineHost, closes a frame on an end_of_frame batch (or on a fixed tick), queries
+// the engine and publishes the frame's EventBatch parts, and publishes Status reports (health and
+// interval statistics periodically, rejections as they happen). RequestStop() makes Run() take
+// what has already arrived, finish the frame (query and publish if anything changed since the
+// last frame), wait briefly for subscribers' acknowledgements, report STOPPING and return.
+//
+// Thread safety: Run() on one thread; RequestStop() and the counters from any thread.
+// Invariants: EventBatch.sequence increases by one per part written, also when a write failed,
+// so subscribers see every loss as a gap; a batch's valid items are applied even when others
+// are rejected; no input makes Run() fail (only DDS failures do).
+#pragma once
+
+#include <atomic>
+#include <chrono>
+#include <cstdint>
+#include <memory>
+#include <string>
+#include <unordered_map>
+#include <vector>
+
+#include "broadphase.pb.h"
+#include "config.h"
+#include "engine_host.h"
+
+#include "bp/client/connection.h"
+#include "bp/dds/dds.h"
+#include "bp/status.h"
+
+namespace bp::service {
+
+class Daemon {
+ public:
+  /// Builds the engine and joins DDS as config says.
+  static Status Create(const Config& config, std::unique_ptr<Daemon>* out);
+  ~Daemon();
+  /// Serves until RequestStop(); ok on a clean stop.
+  Status Run();
+  /// Asks Run() to finish the frame and return (thread-safe; not async-signal-safe).
+  void RequestStop();
+
+  /// Frames closed so far.
+  uint64_t frames() const { return frames_.load(); }
+  /// Items rejected so far.
+  uint64_t rejected() const { return rejected_total_.load(); }
+  /// Update batches received so far (malformed ones included).
+  uint64_t batches() const { return batches_total_.load(); }
+  /// True once Run() is serving (its readers and writers exist and SERVING was published).
+  bool serving() const { return serving_.load(); }
+
+ private:
+  Daemon() = default;
+  void ProcessPayload(std::span<const uint8_t> payload, const dds_sample_info_t& info);
+  bool ClaimProducer(uint32_t producer, dds_instance_handle_t writer);
+  void Drain(size_t max_rounds);
+  void RunFrame(uint32_t source_producer, uint64_t source_frame, uint64_t source_sent_ns);
+  void ReportRejection(uint32_t producer, const wire::UpdateBatch* batch, Reject&& reject);
+  void FlushRejections();
+  void PublishStatus(wire::Health health, bool with_interval);
+  void Summary();
+
+  Config config_;
+  std::unique_ptr<EngineHost> host_;
+  std::unique_ptr<client::Connection> connection_;
+  dds::Reader updates_;
+  dds::Writer events_;
+  dds::Writer status_;
+  dds::WaitSet waitset_;
+  std::string daemon_name_;
+
+  std::atomic<bool> stop_{false};
+  std::atomic<bool> serving_{false};
+  std::atomic<uint64_t> frames_{0};
+  std::atomic<uint64_t> rejected_total_{0};
+  std::atomic<uint64_t> batches_total_{0};
+
+  // Frame state.
+  bool frame_dirty_ = false;  // a batch was applied since the last frame
+  std::chrono::nanoseconds frame_work_{0};
+  uint64_t event_seq_ = 0;
+  uint64_t status_seq_ = 0;
+  uint64_t event_write_failures_ = 0;
+  std::vector<uint64_t> uncollide_;
+  std::vector<uint64_t> collide_;
+  wire::UpdateBatch batch_;
+  wire::EventBatch event_msg_;
+  wire::DaemonStatus status_msg_;
+  std::string buffer_;
+
+  // Producers: the writer that claimed each id, and the last batch_seq seen.
+  std::unordered_map<uint32_t, dds_instance_handle_t> claims_;
+  std::unordered_map<uint32_t, uint64_t> last_batch_seq_;
+
+  // Rejections of the batch being processed.
+  std::vector<wire::Rejection> pending_rejections_;
+  uint64_t pending_not_listed_ = 0;
+
+  // Interval statistics.
+  std::chrono::steady_clock::time_point interval_start_;
+  std::vector<double> frame_ms_;
+  uint64_t interval_frames_ = 0;
+  uint64_t interval_batches_ = 0;
+  uint64_t interval_updates_ = 0;
+  uint64_t interval_events_ = 0;
+  uint64_t interval_rejected_ = 0;
+  wire::IntervalStats last_interval_;
+};
+
+}  // namespace bp::service

@@ -1,0 +1,364 @@
+#include "engine_host.h"
+
+#include <cmath>
+#include <limits>
+#include <type_traits>
+#include <unordered_map>
+#include <unordered_set>
+
+#include "bp/brute_force.h"
+#include "bp/segmented_sap.h"
+
+namespace bp::service {
+namespace {
+
+struct Filter {
+  uint64_t category = 1;
+  uint64_t mask = ~uint64_t{0};
+  bool operator==(const Filter&) const = default;
+};
+
+bool Passes(const Filter& a, const Filter& b) {
+  return (a.category & b.mask) != 0 && (b.category & a.mask) != 0;
+}
+
+std::string ItemName(wire::Op op, uint32_t index, uint64_t id) {
+  const char* what = op == wire::OP_INSERT ? "insert" : op == wire::OP_UPDATE ? "update" : "erase";
+  return std::string(what) + "[" + std::to_string(index) + "] id " + std::to_string(id);
+}
+
+// Converts one wire coordinate to the engine's type. Floating engines round outward (lo down,
+// hi up) so that a narrowing conversion can only grow a box, never lose a pair.
+template <class T, class S>
+bool ConvertCoordinate(S v, bool is_lo, T* out, wire::RejectReason* reason, std::string* why) {
+  if (std::isnan(v) || std::isinf(v)) {
+    *reason = wire::NOT_FINITE;
+    *why = std::isnan(v) ? "NaN" : "infinite";
+    return false;
+  }
+  if constexpr (std::is_floating_point_v<T>) {
+    if constexpr (sizeof(S) > sizeof(T)) {
+      if (std::fabs(v) > static_cast<S>(std::numeric_limits<T>::max())) {
+        *reason = wire::NOT_FINITE;
+        *why = std::to_string(v) + " is out of the engine's float range";
+        return false;
+      }
+      T t = static_cast<T>(v);
+      if (is_lo && static_cast<S>(t) > v)
+        t = std::nextafter(t, -std::numeric_limits<T>::infinity());
+      if (!is_lo && static_cast<S>(t) < v)
+        t = std::nextafter(t, std::numeric_limits<T>::infinity());
+      *out = t;
+    } else {
+      *out = static_cast<T>(v);
+    }
+    return true;
+  } else {
+    if (std::trunc(v) != v) {
+      *reason = wire::NOT_INTEGRAL;
+      *why = std::to_string(v) + " is not an integer (the engine's coordinates are integers)";
+      return false;
+    }
+    if (v < static_cast<S>(std::numeric_limits<T>::min()) ||
+        v > static_cast<S>(std::numeric_limits<T>::max())) {
+      *reason = wire::NOT_FINITE;
+      *why = std::to_string(v) + " is out of the engine's integer range";
+      return false;
+    }
+    *out = static_cast<T>(v);
+    return true;
+  }
+}
+
+template <int K, class T>
+class TypedHost final : public EngineHost {
+ public:
+  using Engine = Broadphase<K, T, uint64_t>;
+  using BoxT = Box<K, T>;
+
+  TypedHost(std::unique_ptr<Engine> engine, uint64_t max_objects)
+      : engine_(std::move(engine)), max_objects_(max_objects) {}
+
+  void Apply(const wire::UpdateBatch& batch, const std::function<void(Reject&&)>& reject,
+             ApplyCounts* out) override {
+    const uint32_t producer = batch.producer();
+    auto refuse = [&](wire::Op op, uint32_t index, uint64_t id, wire::RejectReason reason,
+                      std::string why) {
+      ++out->rejected;
+      reject(Reject{op, index, id, reason, ItemName(op, index, id) + ": " + why});
+    };
+
+    for (int i = 0; i < batch.erases_size(); ++i) {
+      const uint32_t index = static_cast<uint32_t>(i);
+      const uint64_t id = batch.erases(i);
+      if (id >= kLocalIdLimit) {
+        refuse(wire::OP_ERASE, index, id, wire::ID_OUT_OF_RANGE, "ids must be below 2^48");
+        continue;
+      }
+      const uint64_t key = GlobalKey(producer, id);
+      if (!engine_->Erase(key).ok()) {
+        refuse(wire::OP_ERASE, index, id, wire::UNKNOWN_ID,
+               "no such object of producer " + std::to_string(producer));
+        continue;
+      }
+      --objects_;
+      ++out->erases;
+      if (inserted_this_frame_.erase(key) > 0) {
+        filters_.erase(key);  // inserted and erased within the frame: no event names it
+      } else {
+        erased_this_frame_.insert(key);
+      }
+    }
+    ApplyBoxes(batch, wire::OP_INSERT, batch.inserts(), refuse, out);
+    ApplyBoxes(batch, wire::OP_UPDATE, batch.updates(), refuse, out);
+  }
+
+  void Query(std::vector<uint64_t>* uncollide, std::vector<uint64_t>* collide) override {
+    uncollide->clear();
+    collide->clear();
+    struct Sink final : EventSink<uint64_t> {
+      TypedHost* host;
+      std::vector<uint64_t>* uncollide;
+      std::vector<uint64_t>* collide;
+      void Collide(const uint64_t& a, const uint64_t& b) override {
+        if (!host->Reported(a, b)) return;
+        collide->push_back(a);
+        collide->push_back(b);
+      }
+      void Uncollide(const uint64_t& a, const uint64_t& b) override {
+        if (!host->Reported(a, b)) return;
+        uncollide->push_back(a);
+        uncollide->push_back(b);
+      }
+    } sink;
+    sink.host = this;
+    sink.uncollide = uncollide;
+    sink.collide = collide;
+    engine_->Query(sink);
+    overlaps_ += collide->size() / 2;
+    overlaps_ -= uncollide->size() / 2;
+    // Erased objects' filters were needed for their uncollides; drop them now.
+    for (uint64_t key : erased_this_frame_) filters_.erase(key);
+    erased_this_frame_.clear();
+    inserted_this_frame_.clear();
+  }
+
+  uint64_t Objects() const override { return objects_; }
+  uint64_t Overlaps() const override { return overlaps_; }
+  void ForEachOverlap(const std::function<void(uint64_t, uint64_t)>& f) const override {
+    engine_->ForEachOverlap([&](const uint64_t& a, const uint64_t& b) {
+      if (Reported(a, b)) f(a, b);
+    });
+  }
+  Stats GetStats() const override { return engine_->GetStats(); }
+  std::string Name() const override { return engine_->Name(); }
+  int Dimension() const override { return K; }
+
+ private:
+  bool Reported(uint64_t a, uint64_t b) const {
+    if (filters_.empty()) return true;
+    return Passes(FilterOf(a), FilterOf(b));
+  }
+  Filter FilterOf(uint64_t key) const {
+    auto it = filters_.find(key);
+    return it == filters_.end() ? Filter{} : it->second;
+  }
+
+  // Checks the shape of a box array; on failure rejects every item with the reason.
+  template <class Refuse>
+  bool CheckShape(const wire::UpdateBatch& batch, wire::Op op, const wire::BoxArray& boxes,
+                  Refuse& refuse) {
+    const size_t n = static_cast<size_t>(boxes.ids_size());
+    if (n == 0) return true;
+    std::string why;
+    wire::RejectReason reason = wire::WRONG_DIMENSION;
+    const bool has32 = boxes.lo32_size() > 0 || boxes.hi32_size() > 0;
+    const bool has64 = boxes.lo64_size() > 0 || boxes.hi64_size() > 0;
+    const size_t lo = static_cast<size_t>(has32 ? boxes.lo32_size() : boxes.lo64_size());
+    const size_t hi = static_cast<size_t>(has32 ? boxes.hi32_size() : boxes.hi64_size());
+    const size_t expected = n * static_cast<size_t>(K);
+    auto attribute_ok = [n](int size) { return size == 0 || static_cast<size_t>(size) == n; };
+    if (batch.dim() != static_cast<uint32_t>(K)) {
+      why = batch.dim() == 0 ? "the batch does not set dim"
+                             : "the batch's dim is " + std::to_string(batch.dim());
+      why += "; the daemon's dimension is " + std::to_string(K);
+    } else if (has32 && has64) {
+      reason = wire::MALFORMED;
+      why = "the array has both float and double coordinates";
+    } else if (lo != expected || hi != expected) {
+      why = std::to_string(n) + " ids need " + std::to_string(expected) + " lo and hi values (" +
+            std::to_string(K) + " per box); got " + std::to_string(lo) + " lo and " +
+            std::to_string(hi) + " hi";
+    } else if (!attribute_ok(boxes.static_flags_size()) || !attribute_ok(boxes.category_size()) ||
+               !attribute_ok(boxes.mask_size())) {
+      reason = wire::BAD_ATTRIBUTE;
+      why = "static_flags, category and mask must be empty or have one value per id";
+    } else if (op == wire::OP_UPDATE && (boxes.static_flags_size() > 0 ||
+                                         boxes.category_size() > 0 || boxes.mask_size() > 0)) {
+      reason = wire::BAD_ATTRIBUTE;
+      why = "attributes are set at insert; erase and reinsert to change them";
+    } else {
+      return true;
+    }
+    for (size_t i = 0; i < n; ++i) {
+      refuse(op, static_cast<uint32_t>(i), boxes.ids(static_cast<int>(i)), reason, why);
+    }
+    return false;
+  }
+
+  template <class S>
+  bool ConvertBox(const S* lo, const S* hi, BoxT* box, wire::RejectReason* reason,
+                  std::string* why) const {
+    for (int a = 0; a < K; ++a) {
+      const size_t axis = static_cast<size_t>(a);
+      std::string detail;
+      if (!ConvertCoordinate<T>(lo[a], true, &box->lo[axis], reason, &detail)) {
+        *why = "lo on axis " + std::to_string(a) + " is " + detail;
+        return false;
+      }
+      if (!ConvertCoordinate<T>(hi[a], false, &box->hi[axis], reason, &detail)) {
+        *why = "hi on axis " + std::to_string(a) + " is " + detail;
+        return false;
+      }
+      if (lo[a] > hi[a]) {
+        *reason = wire::INVERTED;
+        *why = "lo > hi on axis " + std::to_string(a) + " (" + std::to_string(lo[a]) + " > " +
+               std::to_string(hi[a]) + ")";
+        return false;
+      }
+    }
+    return true;
+  }
+
+  template <class Refuse>
+  void ApplyBoxes(const wire::UpdateBatch& batch, wire::Op op, const wire::BoxArray& boxes,
+                  Refuse& refuse, ApplyCounts* out) {
+    if (!CheckShape(batch, op, boxes, refuse)) return;
+    const bool use32 = boxes.lo32_size() > 0;
+    const uint32_t producer = batch.producer();
+    for (int i = 0; i < boxes.ids_size(); ++i) {
+      const uint32_t index = static_cast<uint32_t>(i);
+      const uint64_t id = boxes.ids(i);
+      if (id >= kLocalIdLimit) {
+        refuse(op, index, id, wire::ID_OUT_OF_RANGE, "ids must be below 2^48");
+        continue;
+      }
+      BoxT box;
+      wire::RejectReason reason = wire::REJECT_REASON_UNSPECIFIED;
+      std::string why;
+      const size_t at = static_cast<size_t>(i) * static_cast<size_t>(K);
+      const bool converted =
+          use32
+              ? ConvertBox(boxes.lo32().data() + at, boxes.hi32().data() + at, &box, &reason, &why)
+              : ConvertBox(boxes.lo64().data() + at, boxes.hi64().data() + at, &box, &reason, &why);
+      if (!converted) {
+        refuse(op, index, id, reason, why);
+        continue;
+      }
+      const uint64_t key = GlobalKey(producer, id);
+      if (op == wire::OP_UPDATE) {
+        Status s = engine_->Update(key, box);
+        if (s.code() == StatusCode::kNotFound) {
+          refuse(op, index, id, wire::UNKNOWN_ID,
+                 "no such object of producer " + std::to_string(producer));
+        } else if (!s.ok()) {
+          refuse(op, index, id, wire::ENGINE_REFUSED, s.ToString());
+        } else {
+          ++out->updates;
+        }
+        continue;
+      }
+      Filter filter;
+      if (boxes.category_size() > 0) filter.category = boxes.category(i);
+      if (boxes.mask_size() > 0) filter.mask = boxes.mask(i);
+      const bool reinsert = erased_this_frame_.count(key) > 0;
+      if (reinsert && !(FilterOf(key) == filter)) {
+        refuse(op, index, id, wire::BAD_ATTRIBUTE,
+               "reinserted in the frame that erased it with another category or mask; end the "
+               "frame between the erase and the insert");
+        continue;
+      }
+      if (objects_ >= max_objects_) {
+        refuse(
+            op, index, id, wire::CAPACITY,
+            "the daemon holds limits.max_objects = " + std::to_string(max_objects_) + " objects");
+        continue;
+      }
+      Status s = engine_->Insert(key, box);
+      if (s.code() == StatusCode::kAlreadyExists) {
+        refuse(op, index, id, wire::DUPLICATE_INSERT,
+               "producer " + std::to_string(producer) + " already has an object with this id");
+        continue;
+      }
+      if (!s.ok()) {
+        refuse(op, index, id, wire::ENGINE_REFUSED, s.ToString());
+        continue;
+      }
+      ++objects_;
+      ++out->inserts;
+      if (reinsert) {
+        erased_this_frame_.erase(key);
+      } else {
+        inserted_this_frame_.insert(key);
+        if (!(filter == Filter{})) filters_[key] = filter;
+      }
+    }
+  }
+
+  std::unique_ptr<Engine> engine_;
+  uint64_t max_objects_;
+  uint64_t objects_ = 0;
+  uint64_t overlaps_ = 0;
+  // Non-default filters of live objects, and of objects erased since the last query (their
+  // uncollides are filtered like their collides were).
+  std::unordered_map<uint64_t, Filter> filters_;
+  // Keys live at the last query and erased since (not reinserted), and keys inserted since.
+  std::unordered_set<uint64_t> erased_this_frame_;
+  std::unordered_set<uint64_t> inserted_this_frame_;
+};
+
+template <int K, class T>
+Status Make(const EngineConfig& config, uint64_t max_objects, std::unique_ptr<EngineHost>* out) {
+  std::unique_ptr<Broadphase<K, T, uint64_t>> engine;
+  if (config.algorithm == "brute_force") {
+    engine = std::make_unique<BruteForce<K, T, uint64_t>>();
+  } else if (config.algorithm == "segmented_sap") {
+    engine = std::make_unique<SegmentedSap<K, T, uint64_t>>();
+  } else {
+    return Status(StatusCode::kInvalidArgument, "unknown engine algorithm '" + config.algorithm +
+                                                    "' (known: brute_force, segmented_sap)");
+  }
+  *out = std::make_unique<TypedHost<K, T>>(std::move(engine), max_objects);
+  return Status::Ok();
+}
+
+template <int K>
+Status MakeForDimension(const EngineConfig& config, uint64_t max_objects,
+                        std::unique_ptr<EngineHost>* out) {
+  switch (config.coordinate) {
+    case CoordinateType::kFloat:
+      return Make<K, float>(config, max_objects, out);
+    case CoordinateType::kDouble:
+      return Make<K, double>(config, max_objects, out);
+    case CoordinateType::kInt32:
+      return Make<K, int32_t>(config, max_objects, out);
+  }
+  return Status(StatusCode::kInvalidArgument, "unknown coordinate type");
+}
+
+}  // namespace
+
+Status MakeEngineHost(const EngineConfig& config, uint64_t max_objects,
+                      std::unique_ptr<EngineHost>* out) {
+  switch (config.dimension) {
+    case 2:
+      return MakeForDimension<2>(config, max_objects, out);
+    case 3:
+      return MakeForDimension<3>(config, max_objects, out);
+    default:
+      return Status(StatusCode::kInvalidArgument,
+                    "engine.dimension must be 2 or 3, not " + std::to_string(config.dimension));
+  }
+}
+
+}  // namespace bp::service

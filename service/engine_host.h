@@ -1,0 +1,89 @@
+// bp::service::EngineHost: the daemon's engine behind a runtime choice of algorithm, dimension
+// and coordinate type, with the service-boundary validation of every item of an UpdateBatch.
+//
+// The host owns the id space: a producer's local id (< 2^48) becomes the engine key
+// (producer << 48) | id, so a producer can only name its own objects. It applies a batch in the
+// documented order (erases, inserts, updates), rejects each bad item with a reason and applies
+// the rest, and converts wire coordinates to the engine's type: doubles to a float engine are
+// rounded outward (lo down, hi up), so a conversion never loses a pair; an integer engine takes
+// integral values in range only.
+//
+// Category/mask filtering (Box2D's rule: a pair is reported iff (cat_a & mask_b) != 0 and
+// (cat_b & mask_a) != 0) is applied to the engine's events. An object's category and mask are
+// fixed from insert to erase, so the filter of a pair never changes while it overlaps and the
+// filtered events stay the exact difference of the filtered overlap sets.
+//
+// Thread safety: not thread-safe; the daemon's loop is its only caller.
+// Invariants: Objects() is the engine's live count as of the calls made so far (buffered
+// included); Overlaps() counts reported (filter-passing) overlapping pairs as of the last Query.
+#pragma once
+
+#include <cstdint>
+#include <functional>
+#include <memory>
+#include <string>
+#include <vector>
+
+#include "broadphase.pb.h"
+#include "config.h"
+
+#include "bp/broadphase.h"
+#include "bp/status.h"
+
+namespace bp::service {
+
+/// Producer-local ids are below 2^48; the producer id takes the upper 16 bits of a key.
+inline constexpr int kProducerShift = 48;
+inline constexpr uint64_t kLocalIdLimit = uint64_t{1} << kProducerShift;
+/// The engine key of a producer's object.
+inline constexpr uint64_t GlobalKey(uint32_t producer, uint64_t local) {
+  return (uint64_t{producer} << kProducerShift) | local;
+}
+
+/// One refused item of a batch.
+struct Reject {
+  wire::Op op = wire::OP_UNSPECIFIED;
+  uint32_t index = 0;  ///< position in its array
+  uint64_t id = 0;     ///< producer-local id (0 for the whole batch)
+  wire::RejectReason reason = wire::REJECT_REASON_UNSPECIFIED;
+  std::string message;
+};
+
+/// What Apply did.
+struct ApplyCounts {
+  uint64_t inserts = 0;
+  uint64_t updates = 0;
+  uint64_t erases = 0;
+  uint64_t rejected = 0;
+};
+
+class EngineHost {
+ public:
+  virtual ~EngineHost() = default;
+  /// Validates batch (its version and producer are checked by the caller) and buffers every
+  /// valid item; reject receives each refused one.
+  virtual void Apply(const wire::UpdateBatch& batch, const std::function<void(Reject&&)>& reject,
+                     ApplyCounts* out) = 0;
+  /// Runs the engine's query; replaces uncollide and collide by the frame's reported pairs,
+  /// flattened (a0, b0, a1, b1, ...) in canonical order.
+  virtual void Query(std::vector<uint64_t>* uncollide, std::vector<uint64_t>* collide) = 0;
+  /// Live objects, counting the calls buffered since the last query.
+  virtual uint64_t Objects() const = 0;
+  /// Reported overlapping pairs as of the last query.
+  virtual uint64_t Overlaps() const = 0;
+  /// Calls f(a, b) for every reported overlapping pair as of the last query.
+  virtual void ForEachOverlap(const std::function<void(uint64_t, uint64_t)>& f) const = 0;
+  /// The engine's counters.
+  virtual Stats GetStats() const = 0;
+  /// The engine's algorithm name.
+  virtual std::string Name() const = 0;
+  /// The dimension K.
+  virtual int Dimension() const = 0;
+};
+
+/// Builds the engine the config names. InvalidArgument for an unknown algorithm, dimension or
+/// coordinate type. max_objects bounds the live count (CAPACITY rejections beyond it).
+Status MakeEngineHost(const EngineConfig& config, uint64_t max_objects,
+                      std::unique_ptr<EngineHost>* out);
+
+}  // namespace bp::service

@@ -1,0 +1,113 @@
+// broadphased: the proximity daemon. `broadphased --config config/broadphased.yaml`.
+// Exit status: 0 after a clean stop (SIGINT/SIGTERM), 1 on a runtime failure, 2 on a bad
+// command line or configuration.
+#include <atomic>
+#include <cstdio>
+#include <iostream>
+#include <thread>
+
+#include "config.h"
+#include "daemon.h"
+#include <CLI/CLI.hpp>
+#include <pthread.h>
+#include <signal.h>
+#include <spdlog/sinks/basic_file_sink.h>
+#include <spdlog/sinks/stdout_color_sinks.h>
+#include <spdlog/spdlog.h>
+
+namespace {
+
+int SetUpLogging(const bp::service::LoggingConfig& logging) {
+  try {
+    std::vector<spdlog::sink_ptr> sinks;
+    sinks.push_back(std::make_shared<spdlog::sinks::stderr_color_sink_mt>());
+    if (!logging.file.empty()) {
+      sinks.push_back(std::make_shared<spdlog::sinks::basic_file_sink_mt>(logging.file));
+    }
+    auto logger = std::make_shared<spdlog::logger>("broadphased", sinks.begin(), sinks.end());
+    logger->set_level(spdlog::level::from_str(logging.level));
+    logger->set_pattern("%Y-%m-%d %H:%M:%S.%e [%^%l%$] %v");
+    logger->flush_on(spdlog::level::info);
+    spdlog::set_default_logger(logger);
+  } catch (const spdlog::spdlog_ex& e) {
+    std::fprintf(stderr, "broadphased: cannot set up logging: %s\n", e.what());
+    return 2;
+  }
+  return 0;
+}
+
+}  // namespace
+
+int main(int argc, char** argv) {
+  CLI::App app{
+      "broadphased: the broadphase proximity daemon (updates in over DDS, collide and "
+      "uncollide events out)"};
+  std::string config_path;
+  bool print_config = false;
+  bool check_config = false;
+  app.add_option("-c,--config", config_path, "YAML configuration (default: built-in defaults)")
+      ->check(CLI::ExistingFile);
+  app.add_flag("--print-config", print_config, "print the effective configuration and exit");
+  app.add_flag("--check-config", check_config, "validate the configuration and exit");
+  try {
+    app.parse(argc, argv);
+  } catch (const CLI::ParseError& e) {
+    return app.exit(e) == 0 ? 0 : 2;
+  }
+
+  bp::service::Config config;
+  bp::Status loaded = config_path.empty() ? bp::service::ParseConfig("", "<defaults>", &config)
+                                          : bp::service::LoadConfigFile(config_path, &config);
+  if (!loaded.ok()) {
+    std::fprintf(stderr, "broadphased: configuration refused:\n%s\n", loaded.message().c_str());
+    return 2;
+  }
+  if (print_config) {
+    std::cout << bp::service::ConfigToYaml(config);
+    return 0;
+  }
+  if (check_config) {
+    for (const auto& w : config.warnings) std::fprintf(stderr, "warning: %s\n", w.c_str());
+    std::printf("%s: ok\n", config.source.c_str());
+    return 0;
+  }
+  if (int rc = SetUpLogging(config.logging); rc != 0) return rc;
+  spdlog::info("configuration from {}", config.source);
+  for (const auto& w : config.warnings) spdlog::warn("config: {}", w);
+
+  // Block the stop signals in every thread (Cyclone's included, which start below) and take
+  // them on one thread with sigtimedwait: the daemon's stop path is then ordinary code.
+  sigset_t stop_signals;
+  sigemptyset(&stop_signals);
+  sigaddset(&stop_signals, SIGINT);
+  sigaddset(&stop_signals, SIGTERM);
+  pthread_sigmask(SIG_BLOCK, &stop_signals, nullptr);
+
+  std::unique_ptr<bp::service::Daemon> daemon;
+  if (bp::Status s = bp::service::Daemon::Create(config, &daemon); !s.ok()) {
+    spdlog::critical("cannot start: {}", s.ToString());
+    return 1;
+  }
+  std::atomic<bool> done{false};
+  std::thread signal_thread([&] {
+    const timespec poll{0, 200'000'000};
+    while (!done.load()) {
+      const int sig = sigtimedwait(&stop_signals, nullptr, &poll);
+      if (sig == SIGINT || sig == SIGTERM) {
+        spdlog::info("received {}; finishing the frame", sig == SIGINT ? "SIGINT" : "SIGTERM");
+        daemon->RequestStop();
+        return;
+      }
+    }
+  });
+  bp::Status run = daemon->Run();
+  done.store(true);
+  signal_thread.join();
+  daemon.reset();
+  spdlog::shutdown();
+  if (!run.ok()) {
+    std::fprintf(stderr, "broadphased: %s\n", run.ToString().c_str());
+    return 1;
+  }
+  return 0;
+}

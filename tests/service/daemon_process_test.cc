@@ -1,0 +1,188 @@
+// broadphased as a real subprocess (the binary users run): configuration refusals with line
+// numbers and exit status 2; a scene over DDS whose events equal the oracle's; SIGINT and SIGTERM
+// finish the open frame, publish its events and exit 0.
+#include <filesystem>
+#include <fstream>
+#include <sstream>
+
+#include "service_test_support.h"
+#include <fcntl.h>
+#include <signal.h>
+#include <sys/wait.h>
+#include <unistd.h>
+
+namespace bp::test {
+namespace {
+
+constexpr uint32_t kDomain = BP_TEST_DOMAIN;
+
+std::string TempDir() {
+  auto dir = std::filesystem::temp_directory_path() /
+             ("bp-proc-" + std::to_string(getpid()) + "-" + TestPartition());
+  std::filesystem::create_directories(dir);
+  return dir.string();
+}
+
+// A running broadphased; its stderr goes to a file.
+class Process {
+ public:
+  Process(const std::vector<std::string>& args, const std::string& log_path) {
+    pid_ = fork();
+    if (pid_ == 0) {
+      const int fd = open(log_path.c_str(), O_WRONLY | O_CREAT | O_TRUNC, 0644);
+      dup2(fd, 2);
+      dup2(fd, 1);
+      std::vector<char*> argv;
+      static std::string binary = BROADPHASED;
+      argv.push_back(binary.data());
+      for (auto& a : args) argv.push_back(const_cast<char*>(a.c_str()));
+      argv.push_back(nullptr);
+      execv(binary.c_str(), argv.data());
+      _exit(127);
+    }
+  }
+  ~Process() {
+    if (pid_ > 0 && !exited_) {
+      kill(pid_, SIGKILL);
+      int status = 0;
+      waitpid(pid_, &status, 0);
+    }
+  }
+  void Signal(int sig) { kill(pid_, sig); }
+  /// Waits for exit; the exit status, or -1 on timeout or a death by signal.
+  int Wait(std::chrono::milliseconds timeout = 20s) {
+    const auto deadline = std::chrono::steady_clock::now() + timeout;
+    while (std::chrono::steady_clock::now() < deadline) {
+      int status = 0;
+      const pid_t r = waitpid(pid_, &status, WNOHANG);
+      if (r == pid_) {
+        exited_ = true;
+        return WIFEXITED(status) ? WEXITSTATUS(status) : -1;
+      }
+      std::this_thread::sleep_for(10ms);
+    }
+    return -1;
+  }
+
+ private:
+  pid_t pid_ = -1;
+  bool exited_ = false;
+};
+
+std::string ReadFile(const std::string& path) {
+  std::ifstream in(path);
+  std::stringstream s;
+  s << in.rdbuf();
+  return s.str();
+}
+
+std::string WriteConfig(const std::string& dir, const std::string& text) {
+  const std::string path = dir + "/broadphased.yaml";
+  std::ofstream(path) << text;
+  return path;
+}
+
+std::string ConfigText(const service::Config& c) {
+  return "engine:\n  algorithm: segmented_sap\n  dimension: 3\n"
+         "dds:\n  domain: " +
+         std::to_string(c.dds.domain) + "\n  cyclone_config: " + c.dds.cyclone_config +
+         "\n  partition: " + c.dds.partition +
+         "\nlogging:\n  level: info\n  summary_interval_s: 0.2\n";
+}
+
+TEST(DaemonProcess, BadConfigIsRefusedWithLineNumbersAndExitStatus2) {
+  const std::string dir = TempDir();
+  const std::string config = WriteConfig(dir,
+                                         "engine:\n"
+                                         "  algorithm: segmented_sap\n"
+                                         "  dimensions: 3\n"
+                                         "frames:\n"
+                                         "  boundary: sometimes\n");
+  Process p({"--config", config}, dir + "/log");
+  EXPECT_EQ(p.Wait(), 2);
+  const std::string log = ReadFile(dir + "/log");
+  EXPECT_NE(log.find(":3:"), std::string::npos) << log;
+  EXPECT_NE(log.find("unknown key 'engine.dimensions'"), std::string::npos) << log;
+  EXPECT_NE(log.find(":5:"), std::string::npos) << log;
+  EXPECT_NE(log.find("sometimes"), std::string::npos) << log;
+}
+
+TEST(DaemonProcess, MissingCycloneConfigFailsWithExitStatus1) {
+  const std::string dir = TempDir();
+  service::Config c = TestConfig(kDomain);
+  c.dds.cyclone_config = dir + "/no-such.xml";
+  const std::string config = WriteConfig(dir, ConfigText(c));
+  Process p({"--config", config}, dir + "/log");
+  EXPECT_EQ(p.Wait(), 1);
+  EXPECT_NE(ReadFile(dir + "/log").find("no-such.xml"), std::string::npos);
+}
+
+void SceneThenSignal(int sig) {
+  const std::string dir = TempDir();
+  service::Config c = TestConfig(kDomain);
+  const std::string config = WriteConfig(dir, ConfigText(c));
+  Process daemon({"--config", config}, dir + "/log");
+
+  std::unique_ptr<client::Connection> connection;
+  BP_ASSERT_OK(client::Connection::Open(ClientOptions(c), &connection));
+  EventCollector events(*connection);
+  BP_ASSERT_OK(events.subscriber().WaitForDaemon(20s));
+  std::unique_ptr<client::UpdatePublisher> pub;
+  BP_ASSERT_OK(client::UpdatePublisher::Create(*connection, 9, 5000ms, &pub));
+  BP_ASSERT_OK(pub->WaitForDaemon(20s));
+
+  SceneParams params;
+  params.n = 300;
+  params.moving = 40;
+  params.churn = 4;
+  params.density = 0.2;
+  Scene scene(params);
+  Oracle<3> oracle;
+  PairList unc, col;
+  FrameOps ops;
+  ops.inserts = scene.Initial();
+  for (uint64_t frame = 1; frame <= 10; ++frame) {
+    if (frame > 1) scene.NextFrame(&ops);
+    oracle.Apply(9, ops);
+    oracle.Query(&unc, &col);
+    wire::UpdateBatch batch;
+    client::FillSceneFrame(ops, 3, &batch);
+    batch.set_frame(frame);
+    // The last frame is left open: the signal must finish it.
+    batch.set_end_of_frame(frame < 10);
+    BP_ASSERT_OK(pub->Publish(&batch));
+    if (frame == 10) {
+      BP_ASSERT_OK(pub->Flush(5s));
+      daemon.Signal(sig);
+    }
+    FrameEvents got;
+    ASSERT_TRUE(events.WaitFrame(frame, &got, 20s)) << "frame " << frame;
+    EXPECT_EQ(got.uncollide, unc) << "frame " << frame;
+    EXPECT_EQ(got.collide, col) << "frame " << frame;
+  }
+  EXPECT_EQ(daemon.Wait(), 0);
+  const std::string log = ReadFile(dir + "/log");
+  EXPECT_NE(log.find("finishing the frame"), std::string::npos) << log;
+  EXPECT_NE(log.find("stopped after 10 frames"), std::string::npos) << log;
+  EXPECT_NE(log.find("frames/s"), std::string::npos) << "no periodic summary line:\n" << log;
+}
+
+TEST(DaemonProcess, SceneThenSigintFinishesTheFrameAndExits0) { SceneThenSignal(SIGINT); }
+TEST(DaemonProcess, SceneThenSigtermFinishesTheFrameAndExits0) { SceneThenSignal(SIGTERM); }
+
+TEST(DaemonProcess, CheckAndPrintConfig) {
+  const std::string dir = TempDir();
+  Process check({"--check-config", "--config", SourcePath("config/broadphased.yaml")},
+                dir + "/check");
+  EXPECT_EQ(check.Wait(), 0);
+  EXPECT_NE(ReadFile(dir + "/check").find(": ok"), std::string::npos);
+  Process print({"--print-config"}, dir + "/print");
+  EXPECT_EQ(print.Wait(), 0);
+  const std::string printed = ReadFile(dir + "/print");
+  service::Config parsed;
+  Status s = service::ParseConfig(printed, "printed", &parsed);
+  EXPECT_TRUE(s.ok()) << s.ToString() << "\n" << printed;
+}
+
+}  // namespace
+}  // namespace bp::test

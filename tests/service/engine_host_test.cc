@@ -1,0 +1,337 @@
+// EngineHost without DDS: the service-boundary validation, the id space, coordinate conversion
+// and filtering, checked against the brute-force oracle and a model of the live set.
+#include "engine_host.h"
+
+#include <cmath>
+#include <limits>
+#include <map>
+#include <random>
+#include <set>
+
+#include <gtest/gtest.h>
+
+#include "bp/brute_force.h"
+#include "bp/client/batch_builder.h"
+
+namespace bp::service {
+namespace {
+
+using PairList = std::vector<std::pair<uint64_t, uint64_t>>;
+
+std::unique_ptr<EngineHost> MakeHost(const char* algorithm, int dim, CoordinateType coordinate,
+                                     uint64_t max_objects = 1 << 20) {
+  EngineConfig config;
+  config.algorithm = algorithm;
+  config.dimension = dim;
+  config.coordinate = coordinate;
+  std::unique_ptr<EngineHost> host;
+  Status s = MakeEngineHost(config, max_objects, &host);
+  EXPECT_TRUE(s.ok()) << s.ToString();
+  return host;
+}
+
+PairList ToPairs(const std::vector<uint64_t>& flat) {
+  PairList out;
+  for (size_t i = 0; i + 1 < flat.size(); i += 2) out.emplace_back(flat[i], flat[i + 1]);
+  return out;
+}
+
+struct Outcome {
+  std::vector<Reject> rejects;
+  ApplyCounts counts;
+};
+
+Outcome Apply(EngineHost& host, const wire::UpdateBatch& batch) {
+  Outcome out;
+  host.Apply(
+      batch, [&](Reject&& r) { out.rejects.push_back(std::move(r)); }, &out.counts);
+  return out;
+}
+
+wire::UpdateBatch Batch(uint32_t producer, int dim) {
+  wire::UpdateBatch b;
+  b.set_version(wire::SCHEMA_VERSION_1);
+  b.set_producer(producer);
+  b.set_dim(static_cast<uint32_t>(dim));
+  return b;
+}
+
+void AddBox(wire::BoxArray* a, uint64_t id, const std::vector<double>& lo,
+            const std::vector<double>& hi) {
+  a->add_ids(id);
+  for (double v : lo) a->add_lo64(v);
+  for (double v : hi) a->add_hi64(v);
+}
+
+// Random batches from three producers with valid and invalid items; the host's events must
+// equal the oracle's on the valid items, and each invalid item must be refused for its reason.
+template <int K>
+void RandomBatches(const char* algorithm, CoordinateType coordinate, uint64_t seed) {
+  SCOPED_TRACE(::testing::Message() << algorithm << " K=" << K << " seed=" << seed);
+  auto host = MakeHost(algorithm, K, coordinate);
+  BruteForce<K, double, uint64_t> oracle;
+  std::mt19937_64 rng(seed);
+  std::map<uint64_t, bool> live;  // global key -> live (model)
+  auto coord = [&] { return static_cast<double>(rng() % 40); };
+  for (int frame = 0; frame < 40; ++frame) {
+    std::set<uint64_t> touched;  // keys named by a valid item in this frame's batches
+    for (uint32_t producer = 1; producer <= 3; ++producer) {
+      wire::UpdateBatch batch = Batch(producer, K);
+      std::vector<wire::RejectReason> expect_insert, expect_update, expect_erase;
+      std::set<uint64_t> erased_now;
+      for (int i = 0; i < 6; ++i) {
+        const uint64_t id = rng() % 30;
+        const uint64_t key = GlobalKey(producer, id);
+        const bool ok = live.count(key) > 0 && live[key];
+        if (ok && rng() % 2 == 0 && !erased_now.count(id)) {
+          batch.add_erases(id);
+          erased_now.insert(id);
+          expect_erase.push_back(wire::REJECT_REASON_UNSPECIFIED);
+          live[key] = false;
+          ASSERT_TRUE(oracle.Erase(key).ok());
+        } else if (!ok && rng() % 4 == 0) {
+          batch.add_erases(id);  // unknown
+          expect_erase.push_back(wire::UNKNOWN_ID);
+        }
+      }
+      for (int i = 0; i < 6; ++i) {
+        const uint64_t id = rng() % 30;
+        const uint64_t key = GlobalKey(producer, id);
+        std::vector<double> lo(K), hi(K);
+        for (int a = 0; a < K; ++a) {
+          lo[static_cast<size_t>(a)] = coord();
+          hi[static_cast<size_t>(a)] = lo[static_cast<size_t>(a)] + static_cast<double>(rng() % 6);
+        }
+        wire::RejectReason expect = wire::REJECT_REASON_UNSPECIFIED;
+        const int fault = static_cast<int>(rng() % 10);
+        if (fault == 0) {
+          lo[0] = std::numeric_limits<double>::quiet_NaN();
+          expect = wire::NOT_FINITE;
+        } else if (fault == 1) {
+          std::swap(lo[K - 1], hi[K - 1]);
+          hi[K - 1] -= 1;
+          expect = wire::INVERTED;
+        } else if (live.count(key) && live[key]) {
+          expect = wire::DUPLICATE_INSERT;
+        }
+        AddBox(batch.mutable_inserts(), id, lo, hi);
+        expect_insert.push_back(expect);
+        if (expect == wire::REJECT_REASON_UNSPECIFIED) {
+          live[key] = true;
+          Box<K, double> box;
+          for (size_t a = 0; a < K; ++a) box.lo[a] = lo[a], box.hi[a] = hi[a];
+          ASSERT_TRUE(oracle.Insert(key, box).ok());
+        }
+      }
+      for (int i = 0; i < 6; ++i) {
+        const uint64_t id = rng() % 30;
+        const uint64_t key = GlobalKey(producer, id);
+        std::vector<double> lo(K), hi(K);
+        for (int a = 0; a < K; ++a) {
+          lo[static_cast<size_t>(a)] = coord();
+          hi[static_cast<size_t>(a)] = lo[static_cast<size_t>(a)] + static_cast<double>(rng() % 6);
+        }
+        const bool known = live.count(key) && live[key];
+        AddBox(batch.mutable_updates(), id, lo, hi);
+        expect_update.push_back(known ? wire::REJECT_REASON_UNSPECIFIED : wire::UNKNOWN_ID);
+        if (known) {
+          Box<K, double> box;
+          for (size_t a = 0; a < K; ++a) box.lo[a] = lo[a], box.hi[a] = hi[a];
+          ASSERT_TRUE(oracle.Update(key, box).ok());
+        }
+      }
+      Outcome out = Apply(*host, batch);
+      auto check = [&](wire::Op op, const std::vector<wire::RejectReason>& expect) {
+        for (size_t i = 0; i < expect.size(); ++i) {
+          const Reject* found = nullptr;
+          for (auto& r : out.rejects) {
+            if (r.op == op && r.index == i) found = &r;
+          }
+          if (expect[i] == wire::REJECT_REASON_UNSPECIFIED) {
+            EXPECT_EQ(found, nullptr) << "op " << op << " item " << i << ": " << found->message;
+          } else {
+            ASSERT_NE(found, nullptr) << "op " << op << " item " << i << " not rejected";
+            EXPECT_EQ(found->reason, expect[i]) << found->message;
+          }
+        }
+      };
+      check(wire::OP_ERASE, expect_erase);
+      check(wire::OP_INSERT, expect_insert);
+      check(wire::OP_UPDATE, expect_update);
+    }
+    std::vector<uint64_t> unc, col;
+    host->Query(&unc, &col);
+    PairList want_unc, want_col;
+    struct Sink final : EventSink<uint64_t> {
+      PairList* u;
+      PairList* c;
+      void Collide(const uint64_t& a, const uint64_t& b) override { c->emplace_back(a, b); }
+      void Uncollide(const uint64_t& a, const uint64_t& b) override { u->emplace_back(a, b); }
+    } sink;
+    sink.u = &want_unc;
+    sink.c = &want_col;
+    oracle.Query(sink);
+    ASSERT_EQ(ToPairs(unc), want_unc) << "frame " << frame;
+    ASSERT_EQ(ToPairs(col), want_col) << "frame " << frame;
+    EXPECT_EQ(host->Objects(), oracle.Size());
+  }
+}
+
+TEST(EngineHost, RandomBatchesMatchTheOracle) {
+  for (uint64_t seed = 1; seed <= 3; ++seed) {
+    for (const char* algorithm : {"segmented_sap", "brute_force"}) {
+      for (CoordinateType c :
+           {CoordinateType::kFloat, CoordinateType::kDouble, CoordinateType::kInt32}) {
+        RandomBatches<3>(algorithm, c, seed);
+        RandomBatches<2>(algorithm, c, seed);
+      }
+    }
+  }
+}
+
+TEST(EngineHost, UnknownAlgorithmOrDimensionIsRefused) {
+  EngineConfig config;
+  std::unique_ptr<EngineHost> host;
+  config.algorithm = "octree";
+  EXPECT_EQ(MakeEngineHost(config, 10, &host).code(), StatusCode::kInvalidArgument);
+  config.algorithm = "segmented_sap";
+  config.dimension = 4;
+  Status s = MakeEngineHost(config, 10, &host);
+  EXPECT_NE(s.message().find("engine.dimension must be 2 or 3"), std::string::npos);
+}
+
+TEST(EngineHost, IntegerEngineTakesIntegersInRangeOnly) {
+  auto host = MakeHost("segmented_sap", 2, CoordinateType::kInt32);
+  wire::UpdateBatch b = Batch(1, 2);
+  AddBox(b.mutable_inserts(), 1, {0, 0}, {2, 2});
+  AddBox(b.mutable_inserts(), 2, {0.5, 0}, {2, 2});
+  AddBox(b.mutable_inserts(), 3, {0, 0}, {3e9, 2});
+  AddBox(b.mutable_inserts(), 4, {-2147483648.0, 0}, {2147483647.0, 2});
+  Outcome out = Apply(*host, b);
+  ASSERT_EQ(out.rejects.size(), 2u);
+  EXPECT_EQ(out.rejects[0].reason, wire::NOT_INTEGRAL);
+  EXPECT_NE(out.rejects[0].message.find("insert[1] id 2: lo on axis 0"), std::string::npos);
+  EXPECT_EQ(out.rejects[1].reason, wire::NOT_FINITE);
+  EXPECT_NE(out.rejects[1].message.find("integer range"), std::string::npos);
+  std::vector<uint64_t> unc, col;
+  host->Query(&unc, &col);
+  EXPECT_EQ(ToPairs(col), (PairList{{GlobalKey(1, 1), GlobalKey(1, 4)}}));
+}
+
+TEST(EngineHost, FloatEngineRoundsDoublesOutward) {
+  auto host = MakeHost("segmented_sap", 2, CoordinateType::kFloat);
+  // In double, [0, 0.1] and [0.1, 1] touch. 0.1 is not a float: rounding each to nearest
+  // gives the same float for both, but outward rounding must keep them touching, and boxes
+  // that are apart by less than a float ulp may be reported (never the reverse).
+  wire::UpdateBatch b = Batch(1, 2);
+  AddBox(b.mutable_inserts(), 1, {0, 0}, {0.1, 1});
+  AddBox(b.mutable_inserts(), 2, {0.1, 0}, {1, 1});
+  AddBox(b.mutable_inserts(), 3, {0.1 + 1e-12, 2}, {1, 3});
+  AddBox(b.mutable_inserts(), 4, {0, 2}, {0.1, 3});
+  EXPECT_TRUE(Apply(*host, b).rejects.empty());
+  std::vector<uint64_t> unc, col;
+  host->Query(&unc, &col);
+  EXPECT_EQ(ToPairs(col),
+            (PairList{{GlobalKey(1, 1), GlobalKey(1, 2)}, {GlobalKey(1, 3), GlobalKey(1, 4)}}));
+}
+
+TEST(EngineHost, CapacityRefusesInsertsBeyondTheLimit) {
+  auto host = MakeHost("segmented_sap", 3, CoordinateType::kFloat, 3);
+  wire::UpdateBatch b = Batch(1, 3);
+  for (uint64_t id = 0; id < 5; ++id) AddBox(b.mutable_inserts(), id, {0, 0, 0}, {1, 1, 1});
+  Outcome out = Apply(*host, b);
+  ASSERT_EQ(out.rejects.size(), 2u);
+  EXPECT_EQ(out.rejects[0].reason, wire::CAPACITY);
+  EXPECT_EQ(host->Objects(), 3u);
+  // An erase makes room again, within the same batch order (erases first).
+  wire::UpdateBatch c = Batch(1, 3);
+  c.add_erases(0);
+  AddBox(c.mutable_inserts(), 9, {0, 0, 0}, {1, 1, 1});
+  EXPECT_TRUE(Apply(*host, c).rejects.empty());
+}
+
+TEST(EngineHost, EraseAndReinsertInOneBatchIsAnUpdate) {
+  auto host = MakeHost("segmented_sap", 3, CoordinateType::kFloat);
+  wire::UpdateBatch a = Batch(1, 3);
+  AddBox(a.mutable_inserts(), 1, {0, 0, 0}, {1, 1, 1});
+  AddBox(a.mutable_inserts(), 2, {0, 0, 0}, {1, 1, 1});
+  Apply(*host, a);
+  std::vector<uint64_t> unc, col;
+  host->Query(&unc, &col);
+  ASSERT_EQ(col.size(), 2u);
+  wire::UpdateBatch b = Batch(1, 3);
+  b.add_erases(2);
+  AddBox(b.mutable_inserts(), 2, {0.5, 0, 0}, {1, 1, 1});
+  EXPECT_TRUE(Apply(*host, b).rejects.empty());
+  host->Query(&unc, &col);
+  EXPECT_TRUE(unc.empty());
+  EXPECT_TRUE(col.empty());
+  // Reinserting with another category in the frame of the erase is refused (the pair's
+  // filter would change while it overlaps).
+  wire::UpdateBatch c = Batch(1, 3);
+  c.add_erases(2);
+  AddBox(c.mutable_inserts(), 2, {0.5, 0, 0}, {1, 1, 1});
+  c.mutable_inserts()->add_category(4);
+  Outcome out = Apply(*host, c);
+  ASSERT_EQ(out.rejects.size(), 1u);
+  EXPECT_EQ(out.rejects[0].reason, wire::BAD_ATTRIBUTE);
+  host->Query(&unc, &col);
+  EXPECT_EQ(ToPairs(unc), (PairList{{GlobalKey(1, 1), GlobalKey(1, 2)}}));
+  EXPECT_EQ(host->Overlaps(), 0u);
+}
+
+TEST(EngineHost, FiltersMatchABruteForceFilteredOracle) {
+  std::mt19937_64 rng(5);
+  auto host = MakeHost("segmented_sap", 2, CoordinateType::kDouble);
+  std::map<uint64_t, std::pair<uint64_t, uint64_t>> filter;  // key -> (category, mask)
+  std::map<uint64_t, Box<2, double>> boxes;
+  std::set<std::pair<uint64_t, uint64_t>> reported;
+  for (int frame = 0; frame < 60; ++frame) {
+    wire::UpdateBatch b = Batch(1, 2);
+    std::set<uint64_t> named;
+    for (int i = 0; i < 8; ++i) {
+      const uint64_t id = rng() % 25;
+      if (named.count(id)) continue;
+      named.insert(id);
+      const uint64_t key = GlobalKey(1, id);
+      const double x = static_cast<double>(rng() % 20), y = static_cast<double>(rng() % 20);
+      if (boxes.count(key) && rng() % 3 == 0) {
+        b.add_erases(id);
+        boxes.erase(key);
+        filter.erase(key);
+      } else if (boxes.count(key)) {
+        AddBox(b.mutable_updates(), id, {x, y}, {x + 4, y + 4});
+        boxes[key] = Box<2, double>{{x, y}, {x + 4, y + 4}};
+      } else {
+        AddBox(b.mutable_inserts(), id, {x, y}, {x + 4, y + 4});
+        boxes[key] = Box<2, double>{{x, y}, {x + 4, y + 4}};
+        filter[key] = {uint64_t{1} << (rng() % 3), rng() % 8};
+      }
+    }
+    // Category and mask arrays: one value per insert.
+    for (int i = 0; i < b.inserts().ids_size(); ++i) {
+      const auto& f = filter[GlobalKey(1, b.inserts().ids(i))];
+      b.mutable_inserts()->add_category(f.first);
+      b.mutable_inserts()->add_mask(f.second);
+    }
+    ASSERT_TRUE(Apply(*host, b).rejects.empty());
+    std::vector<uint64_t> unc, col;
+    host->Query(&unc, &col);
+    for (auto& p : ToPairs(unc)) EXPECT_EQ(reported.erase(p), 1u);
+    for (auto& p : ToPairs(col)) EXPECT_TRUE(reported.insert(p).second);
+    std::set<std::pair<uint64_t, uint64_t>> want;
+    for (auto& [a, ba] : boxes) {
+      for (auto& [b2, bb] : boxes) {
+        if (a >= b2 || !Overlaps(ba, bb)) continue;
+        const auto& fa = filter[a];
+        const auto& fb = filter[b2];
+        if ((fa.first & fb.second) && (fb.first & fa.second)) want.insert({a, b2});
+      }
+    }
+    ASSERT_EQ(reported, want) << "frame " << frame;
+    EXPECT_EQ(host->Overlaps(), want.size());
+  }
+}
+
+}  // namespace
+}  // namespace bp::service
