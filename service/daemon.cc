@@ -1,6 +1,7 @@
 #include "daemon.h"
 
 #include <algorithm>
+#include <limits>
 
 #include <spdlog/spdlog.h>
 #include <unistd.h>
@@ -181,7 +182,9 @@ void Daemon::ProcessPayload(std::span<const uint8_t> payload, const dds_sample_i
     ReportRejection(producer, nullptr, Reject{wire::OP_BATCH, 0, 0, reason, std::move(why)});
     FlushRejections();
   };
-  if (payload.size() > limits.max_batch_bytes) {
+  // protobuf parses at most INT_MAX bytes, whatever limits.max_batch_bytes says.
+  if (payload.size() > limits.max_batch_bytes ||
+      payload.size() > static_cast<size_t>(std::numeric_limits<int>::max())) {
     batch_reject(
         0, wire::OVERSIZE,
         "batch of " + std::to_string(payload.size()) +

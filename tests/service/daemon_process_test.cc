@@ -16,12 +16,22 @@ namespace {
 
 constexpr uint32_t kDomain = BP_TEST_DOMAIN;
 
-std::string TempDir() {
-  auto dir = std::filesystem::temp_directory_path() /
-             ("bp-proc-" + std::to_string(getpid()) + "-" + TestPartition());
-  std::filesystem::create_directories(dir);
-  return dir.string();
-}
+// A scratch directory per test, removed when the test ends.
+class ScratchDir {
+ public:
+  ScratchDir()
+      : path_((std::filesystem::temp_directory_path() / ("bp-proc-" + TestPartition())).string()) {
+    std::filesystem::create_directories(path_);
+  }
+  ~ScratchDir() {
+    std::error_code ignored;
+    std::filesystem::remove_all(path_, ignored);
+  }
+  const std::string& path() const { return path_; }
+
+ private:
+  std::string path_;
+};
 
 // A running broadphased; its stderr goes to a file.
 class Process {
@@ -91,7 +101,8 @@ std::string ConfigText(const service::Config& c) {
 }
 
 TEST(DaemonProcess, BadConfigIsRefusedWithLineNumbersAndExitStatus2) {
-  const std::string dir = TempDir();
+  ScratchDir scratch;
+  const std::string& dir = scratch.path();
   const std::string config = WriteConfig(dir,
                                          "engine:\n"
                                          "  algorithm: segmented_sap\n"
@@ -108,7 +119,8 @@ TEST(DaemonProcess, BadConfigIsRefusedWithLineNumbersAndExitStatus2) {
 }
 
 TEST(DaemonProcess, MissingCycloneConfigFailsWithExitStatus1) {
-  const std::string dir = TempDir();
+  ScratchDir scratch;
+  const std::string& dir = scratch.path();
   service::Config c = TestConfig(kDomain);
   c.dds.cyclone_config = dir + "/no-such.xml";
   const std::string config = WriteConfig(dir, ConfigText(c));
@@ -118,7 +130,8 @@ TEST(DaemonProcess, MissingCycloneConfigFailsWithExitStatus1) {
 }
 
 void SceneThenSignal(int sig) {
-  const std::string dir = TempDir();
+  ScratchDir scratch;
+  const std::string& dir = scratch.path();
   service::Config c = TestConfig(kDomain);
   const std::string config = WriteConfig(dir, ConfigText(c));
   Process daemon({"--config", config}, dir + "/log");
@@ -171,7 +184,8 @@ TEST(DaemonProcess, SceneThenSigintFinishesTheFrameAndExits0) { SceneThenSignal(
 TEST(DaemonProcess, SceneThenSigtermFinishesTheFrameAndExits0) { SceneThenSignal(SIGTERM); }
 
 TEST(DaemonProcess, CheckAndPrintConfig) {
-  const std::string dir = TempDir();
+  ScratchDir scratch;
+  const std::string& dir = scratch.path();
   Process check({"--check-config", "--config", SourcePath("config/broadphased.yaml")},
                 dir + "/check");
   EXPECT_EQ(check.Wait(), 0);

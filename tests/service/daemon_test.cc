@@ -463,3 +463,50 @@ TEST(Daemon, DoublesToAFloatEngineRoundOutward) {
 
 }  // namespace
 }  // namespace bp::test
+
+namespace bp::test {
+namespace {
+
+TEST(Daemon, ASubscriberThatNeverReadsStallsNothing) {
+  service::Config config = TestConfig(kDomain);
+  config.dds.write_timeout_ms = 2000;  // a blocked write would show as a 2 s stall per frame
+  InProcessDaemon daemon(config);
+  Client client(config);
+  std::unique_ptr<client::EventSubscriber> sleeper;
+  BP_ASSERT_OK(client::EventSubscriber::Create(*client.connection, 2, &sleeper));
+  BP_ASSERT_OK(sleeper->WaitForDaemon(10s));
+  auto pub = client.Publisher(1);
+  const auto start = std::chrono::steady_clock::now();
+  constexpr uint64_t kFrames = 300;
+  for (uint64_t frame = 1; frame <= kFrames; ++frame) {
+    wire::UpdateBatch batch;
+    batch.set_dim(3);
+    batch.set_end_of_frame(true);
+    client::AddBox<3>(batch.mutable_inserts(), frame, Cube(static_cast<float>(frame) * 0.5f));
+    BP_ASSERT_OK(pub->Publish(&batch));
+  }
+  FrameEvents last;
+  ASSERT_TRUE(client.events->WaitFrame(kFrames, &last, 30s));
+  const double seconds =
+      std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
+  EXPECT_LT(seconds, 20.0) << "the daemon was held up by the subscriber that never reads";
+  EXPECT_EQ(client.events->subscriber().gaps(), 0u);
+  EXPECT_EQ(last.last.objects(), kFrames);
+  // The sleeper kept only its newest batches (depth 2; the last ones may still be in flight to
+  // it) and can tell from the sequence numbers that it missed the others.
+  std::vector<wire::EventBatch> kept;
+  BP_ASSERT_OK(sleeper->Poll(1s, &kept));
+  ASSERT_FALSE(kept.empty());
+  EXPECT_LE(kept.size(), 2u);
+  EXPECT_GT(kept.front().sequence(), kFrames - 10) << "the sleeper's history was not bounded";
+  while (kept.back().frame() < kFrames) {
+    const size_t before = kept.size();
+    BP_ASSERT_OK(sleeper->Poll(5s, &kept));
+    ASSERT_GT(kept.size(), before) << "the last frames never reached the sleeper";
+  }
+  BP_ASSERT_OK(daemon.Stop());
+  EXPECT_EQ(daemon.daemon().frames(), kFrames);
+}
+
+}  // namespace
+}  // namespace bp::test
