@@ -44,6 +44,10 @@ constexpr int kMaxQueueDepth = 100000;
 constexpr double kMaxTickMs = 60000;
 constexpr double kMaxSummaryIntervalS = 86400;
 constexpr uint64_t kMinBatchBytes = 64;
+// protobuf parses and serialises at most 2 GiB - 1 bytes per message.
+constexpr uint64_t kMaxBatchBytes = (uint64_t{1} << 31) - 1;
+// 2^26 pairs of two fixed64 keys: 1 GiB per event part, well under protobuf's 2 GiB.
+constexpr uint64_t kMaxPairsPerEventBatch = uint64_t{1} << 26;
 constexpr uint64_t kU64Max = std::numeric_limits<uint64_t>::max();
 // A configuration file is a few kilobytes; refuse to slurp a device or a huge file by mistake.
 constexpr size_t kMaxConfigFileBytes = 1u << 20;
@@ -144,13 +148,13 @@ void ReadFrames(YamlReader& r, const Field& section, FramesConfig* f) {
 void ReadLimits(YamlReader& r, const Field& section, LimitsConfig* l) {
   r.ReadMapping(section, kLimitsKeys, [&](std::string_view name, const Field& v) {
     if (name == "max_batch_bytes") {
-      r.ReadUint64(v, kMinBatchBytes, kU64Max, &l->max_batch_bytes);
+      r.ReadUint64(v, kMinBatchBytes, kMaxBatchBytes, &l->max_batch_bytes);
     } else if (name == "max_batch_items") {
       r.ReadUint64(v, 1, kU64Max, &l->max_batch_items);
     } else if (name == "max_objects") {
       r.ReadUint64(v, 1, kU64Max, &l->max_objects);
     } else if (name == "max_pairs_per_event_batch") {
-      r.ReadUint64(v, 1, kU64Max, &l->max_pairs_per_event_batch);
+      r.ReadUint64(v, 1, kMaxPairsPerEventBatch, &l->max_pairs_per_event_batch);
     } else if (name == "max_rejections_reported") {
       r.ReadUint64(v, 0, kU64Max, &l->max_rejections_reported);
     }

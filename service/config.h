@@ -88,11 +88,11 @@ struct FramesConfig {
 
 /// The `limits` section: bounds on untrusted input and on output sizes.
 struct LimitsConfig {
-  /// >= 64; an update batch payload larger than this is rejected whole.
+  /// 64 .. 2^31-1; an update batch payload larger than this is rejected whole.
   uint64_t max_batch_bytes = 64ull << 20;
   uint64_t max_batch_items = 1u << 20;  ///< >= 1; inserts + updates + erases in one batch
   uint64_t max_objects = 1ull << 26;    ///< >= 1; inserts beyond this are rejected
-  /// >= 1; a frame's events are split into parts of at most this many pairs.
+  /// 1 .. 2^26; a frame's events are split into parts of at most this many pairs.
   uint64_t max_pairs_per_event_batch = 1u << 20;
   uint64_t max_rejections_reported = 100;  ///< per batch, individually; the rest are counted
 

@@ -100,8 +100,10 @@ Status Daemon::Run() {
   const auto tick = std::chrono::duration_cast<Clock::duration>(
       std::chrono::duration<double, std::milli>(config_.frames.tick_ms));
   const bool summaries = config_.logging.summary_interval_s > 0;
+  summaries_ = summaries;
   const auto summary_every = std::chrono::duration_cast<Clock::duration>(
       std::chrono::duration<double>(summaries ? config_.logging.summary_interval_s : 3600.0));
+  const size_t drain_rounds = static_cast<size_t>(config_.dds.update_queue) / kTakeBatch + 1;
   auto next_tick = Clock::now() + tick;
   auto next_summary = Clock::now() + summary_every;
 
@@ -117,7 +119,9 @@ Status Daemon::Run() {
       }
     }
     if (stop_.load()) break;
-    Drain(SIZE_MAX);
+    // At most one queue's worth per turn: under sustained load the queue never empties, and
+    // ticks, summaries and a stop request must still get their turn.
+    Drain(drain_rounds, /*until_stop=*/true);
     if (tick_mode && Clock::now() >= next_tick) {
       RunFrame(0, 0, 0);
       next_tick += tick;
@@ -133,9 +137,13 @@ Status Daemon::Run() {
 
   // Stop: take what has already arrived (one bounded round, so a producer that keeps sending
   // cannot hold the daemon up), finish the frame, publish its events, and let them be acked.
-  spdlog::info("stopping: finishing frame {}", frames_.load() + 1);
-  Drain(static_cast<size_t>(config_.dds.update_queue) / kTakeBatch + 1);
-  if (frame_dirty_) RunFrame(0, 0, 0);
+  Drain(drain_rounds, /*until_stop=*/false);
+  if (frame_dirty_) {
+    spdlog::info("stopping: finishing frame {}", frames_.load() + 1);
+    RunFrame(0, 0, 0);
+  } else {
+    spdlog::info("stopping: no open frame");
+  }
   if (Status s = events_.WaitForAcks(std::chrono::seconds(2)); !s.ok()) {
     spdlog::warn("not every subscriber acknowledged the last events: {}", s.ToString());
   }
@@ -148,8 +156,8 @@ Status Daemon::Run() {
   return Status::Ok();
 }
 
-void Daemon::Drain(size_t max_rounds) {
-  for (size_t round = 0; round < max_rounds; ++round) {
+void Daemon::Drain(size_t max_rounds, bool until_stop) {
+  for (size_t round = 0; round < max_rounds && !(until_stop && stop_.load()); ++round) {
     size_t taken = 0;
     Status s = updates_.Take(
         kTakeBatch, [this](const dds::Received& r) { ProcessPayload(r.payload, *r.info); }, &taken);
@@ -315,8 +323,12 @@ void Daemon::RunFrame(uint32_t source_producer, uint64_t source_frame, uint64_t 
     event_msg_.set_overlaps(host_->Overlaps());
     event_msg_.set_published_time_ns(client::WallClockNs());
     buffer_.clear();
-    event_msg_.SerializeToString(&buffer_);
-    if (Status s = events_.Write(event_msg_.sequence(), buffer_); !s.ok()) {
+    Status s = event_msg_.SerializeToString(&buffer_)
+                   ? events_.Write(event_msg_.sequence(), buffer_)
+                   : Status(StatusCode::kResourceExhausted,
+                            "the part does not serialise (over 2 GiB?); lower "
+                            "limits.max_pairs_per_event_batch");
+    if (!s.ok()) {
       ++event_write_failures_;
       spdlog::error(
           "frame {} part {}: events not delivered ({}); subscribers see a gap at "
@@ -329,7 +341,10 @@ void Daemon::RunFrame(uint32_t source_producer, uint64_t source_frame, uint64_t 
   ++interval_frames_;
   interval_events_ += pairs;
   frame_work_ += Clock::now() - start;
-  frame_ms_.push_back(std::chrono::duration<double, std::milli>(frame_work_).count());
+  // Kept for the summary's percentiles only, and cleared by it (no summary, no growth).
+  if (summaries_) {
+    frame_ms_.push_back(std::chrono::duration<double, std::milli>(frame_work_).count());
+  }
   frame_work_ = std::chrono::nanoseconds(0);
 }
 
@@ -352,7 +367,10 @@ void Daemon::PublishStatus(wire::Health health, bool with_interval) {
   status_msg_.set_event_write_failures(event_write_failures_);
   status_msg_.set_producers(static_cast<uint32_t>(claims_.size()));
   buffer_.clear();
-  status_msg_.SerializeToString(&buffer_);
+  if (!status_msg_.SerializeToString(&buffer_)) {
+    spdlog::warn("status report does not serialise");
+    return;
+  }
   if (Status s = status_.Write(++status_seq_, buffer_); !s.ok()) {
     spdlog::warn("status report not delivered: {}", s.ToString());
   }

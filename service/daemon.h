@@ -54,7 +54,9 @@ class Daemon {
   Daemon() = default;
   void ProcessPayload(std::span<const uint8_t> payload, const dds_sample_info_t& info);
   bool ClaimProducer(uint32_t producer, dds_instance_handle_t writer);
-  void Drain(size_t max_rounds);
+  // Takes and processes up to max_rounds rounds of batches; with until_stop, also returns as
+  // soon as a stop is requested.
+  void Drain(size_t max_rounds, bool until_stop);
   void RunFrame(uint32_t source_producer, uint64_t source_frame, uint64_t source_sent_ns);
   void ReportRejection(uint32_t producer, const wire::UpdateBatch* batch, Reject&& reject);
   void FlushRejections();
@@ -78,6 +80,7 @@ class Daemon {
 
   // Frame state.
   bool frame_dirty_ = false;  // a batch was applied since the last frame
+  bool summaries_ = false;    // periodic summaries are on (frame times are kept for them)
   std::chrono::nanoseconds frame_work_{0};
   uint64_t event_seq_ = 0;
   uint64_t status_seq_ = 0;

@@ -59,8 +59,11 @@ bool ConvertCoordinate(S v, bool is_lo, T* out, wire::RejectReason* reason, std:
       *why = std::to_string(v) + " is not an integer (the engine's coordinates are integers)";
       return false;
     }
-    if (v < static_cast<S>(std::numeric_limits<T>::min()) ||
-        v > static_cast<S>(std::numeric_limits<T>::max())) {
+    // Compared in double, where every int32 bound is exact: as a float, INT32_MAX rounds up to
+    // 2^31, which is out of range (and its conversion undefined).
+    const double d = static_cast<double>(v);
+    if (d < static_cast<double>(std::numeric_limits<T>::min()) ||
+        d > static_cast<double>(std::numeric_limits<T>::max())) {
       *reason = wire::NOT_FINITE;
       *why = std::to_string(v) + " is out of the engine's integer range";
       return false;

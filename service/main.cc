@@ -1,8 +1,9 @@
 // broadphased: the proximity daemon. `broadphased --config config/broadphased.yaml`.
-// Exit status: 0 after a clean stop (SIGINT/SIGTERM), 1 on a runtime failure, 2 on a bad
-// command line or configuration.
+// Exit status: 0 after a clean stop (SIGINT/SIGTERM; a second signal exits at once with 1),
+// 1 on a runtime failure, 2 on a bad command line or configuration.
 #include <atomic>
 #include <cstdio>
+#include <cstdlib>
 #include <iostream>
 #include <thread>
 
@@ -91,12 +92,19 @@ int main(int argc, char** argv) {
   std::atomic<bool> done{false};
   std::thread signal_thread([&] {
     const timespec poll{0, 200'000'000};
+    bool stopping = false;
     while (!done.load()) {
       const int sig = sigtimedwait(&stop_signals, nullptr, &poll);
-      if (sig == SIGINT || sig == SIGTERM) {
-        spdlog::info("received {}; finishing the frame", sig == SIGINT ? "SIGINT" : "SIGTERM");
+      if (sig != SIGINT && sig != SIGTERM) continue;
+      const char* name = sig == SIGINT ? "SIGINT" : "SIGTERM";
+      if (!stopping) {
+        spdlog::info("received {}; finishing the frame (send it again to exit at once)", name);
+        stopping = true;
         daemon->RequestStop();
-        return;
+      } else {
+        spdlog::warn("received {} again: exiting without finishing the frame", name);
+        spdlog::shutdown();
+        std::_Exit(1);
       }
     }
   });

@@ -1,5 +1,6 @@
 #include "bp/dds/dds.h"
 
+#include <condition_variable>
 #include <map>
 #include <mutex>
 #include <thread>
@@ -92,7 +93,11 @@ void Entity::Reset() {
 }
 
 namespace {
+// The live domains of this process. An entry whose weak_ptr has expired belongs to a Domain
+// being destroyed: its Cyclone domain still exists until ~Domain erases the entry, so Acquire
+// waits for that instead of creating a second domain with the same id (which Cyclone refuses).
 std::mutex domains_mutex;
+std::condition_variable domains_changed;
 std::map<uint32_t, std::weak_ptr<Domain>>& Domains() {
   static std::map<uint32_t, std::weak_ptr<Domain>> domains;
   return domains;
@@ -100,9 +105,11 @@ std::map<uint32_t, std::weak_ptr<Domain>>& Domains() {
 }  // namespace
 
 Status Domain::Acquire(uint32_t id, const std::string& xml, std::shared_ptr<Domain>* out) {
-  std::lock_guard lock(domains_mutex);
+  std::unique_lock lock(domains_mutex);
   auto& domains = Domains();
-  if (auto it = domains.find(id); it != domains.end()) {
+  for (;;) {
+    auto it = domains.find(id);
+    if (it == domains.end()) break;
     if (auto live = it->second.lock()) {
       if (live->xml_ != xml) {
         return Status(StatusCode::kInvalidArgument,
@@ -112,6 +119,7 @@ Status Domain::Acquire(uint32_t id, const std::string& xml, std::shared_ptr<Doma
       *out = std::move(live);
       return Status::Ok();
     }
+    domains_changed.wait(lock);  // being destroyed: wait for ~Domain to erase it
   }
   RouteCycloneLogToSpdlog();
   const dds_entity_t handle = dds_create_domain(id, xml.empty() ? nullptr : xml.c_str());
@@ -128,6 +136,8 @@ Status Domain::Acquire(uint32_t id, const std::string& xml, std::shared_ptr<Doma
 Domain::~Domain() {
   std::lock_guard lock(domains_mutex);
   (void)dds_delete(handle_);
+  Domains().erase(id_);
+  domains_changed.notify_all();
 }
 
 Status Participant::Create(uint32_t domain, const std::string& xml, const std::string& partition,

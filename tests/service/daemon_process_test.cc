@@ -3,6 +3,7 @@
 // finish the open frame, publish its events and exit 0.
 #include <filesystem>
 #include <fstream>
+#include <limits>
 #include <sstream>
 
 #include "service_test_support.h"
@@ -97,7 +98,7 @@ std::string ConfigText(const service::Config& c) {
          "dds:\n  domain: " +
          std::to_string(c.dds.domain) + "\n  cyclone_config: " + c.dds.cyclone_config +
          "\n  partition: " + c.dds.partition +
-         "\nlogging:\n  level: info\n  summary_interval_s: 0.2\n";
+         "\nlogging:\n  level: info\n  summary_interval_s: 0.1\n";
 }
 
 TEST(DaemonProcess, BadConfigIsRefusedWithLineNumbersAndExitStatus2) {
@@ -139,6 +140,7 @@ void SceneThenSignal(int sig) {
   std::unique_ptr<client::Connection> connection;
   BP_ASSERT_OK(client::Connection::Open(ClientOptions(c), &connection));
   EventCollector events(*connection);
+  RejectionCollector status(*connection);
   BP_ASSERT_OK(events.subscriber().WaitForDaemon(20s));
   std::unique_ptr<client::UpdatePublisher> pub;
   BP_ASSERT_OK(client::UpdatePublisher::Create(*connection, 9, 5000ms, &pub));
@@ -163,7 +165,12 @@ void SceneThenSignal(int sig) {
     batch.set_frame(frame);
     // The last frame is left open: the signal must finish it.
     batch.set_end_of_frame(frame < 10);
+    if (frame == 3) {  // one bad item among the good ones: refused, the rest applies
+      client::AddBox<3>(batch.mutable_inserts(), 1'000'000,
+                        Box<3, float>{{0, 0, 0}, {std::numeric_limits<float>::quiet_NaN(), 1, 1}});
+    }
     BP_ASSERT_OK(pub->Publish(&batch));
+    if (frame == 9) std::this_thread::sleep_for(300ms);  // periodic summaries (every 0.1 s)
     if (frame == 10) {
       BP_ASSERT_OK(pub->Flush(5s));
       daemon.Signal(sig);
@@ -173,11 +180,19 @@ void SceneThenSignal(int sig) {
     EXPECT_EQ(got.uncollide, unc) << "frame " << frame;
     EXPECT_EQ(got.collide, col) << "frame " << frame;
   }
+  ASSERT_TRUE(status.WaitFor(1));
+  EXPECT_EQ(status.rejections()[0].reason(), wire::NOT_FINITE);
+  EXPECT_EQ(status.rejections()[0].id(), 1'000'000u);
   EXPECT_EQ(daemon.Wait(), 0);
   const std::string log = ReadFile(dir + "/log");
-  EXPECT_NE(log.find("finishing the frame"), std::string::npos) << log;
+  EXPECT_NE(log.find("insert["), std::string::npos) << "the rejection is not in the log:\n" << log;
+  const size_t signal_at = log.find("finishing the frame");
+  ASSERT_NE(signal_at, std::string::npos) << log;
   EXPECT_NE(log.find("stopped after 10 frames"), std::string::npos) << log;
-  EXPECT_NE(log.find("frames/s"), std::string::npos) << "no periodic summary line:\n" << log;
+  // A periodic summary line before the signal (the stop path prints one too; that one does not
+  // count).
+  const size_t summary_at = log.find("frames/s");
+  EXPECT_LT(summary_at, signal_at) << "no periodic summary line before the signal:\n" << log;
 }
 
 TEST(DaemonProcess, SceneThenSigintFinishesTheFrameAndExits0) { SceneThenSignal(SIGINT); }

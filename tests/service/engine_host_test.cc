@@ -207,7 +207,16 @@ TEST(EngineHost, IntegerEngineTakesIntegersInRangeOnly) {
   AddBox(b.mutable_inserts(), 2, {0.5, 0}, {2, 2});
   AddBox(b.mutable_inserts(), 3, {0, 0}, {3e9, 2});
   AddBox(b.mutable_inserts(), 4, {-2147483648.0, 0}, {2147483647.0, 2});
-  Outcome out = Apply(*host, b);
+  // As floats, 2^31 (INT32_MAX rounded up) is out of range; -2^31 is in.
+  wire::UpdateBatch f = Batch(1, 2);
+  client::AddBox<2>(f.mutable_inserts(), 5, Box<2, float>{{-2147483648.0f, 0}, {0, 2}});
+  client::AddBox<2>(f.mutable_inserts(), 6, Box<2, float>{{0, 0}, {2147483648.0f, 2}});
+  Outcome out = Apply(*host, f);
+  ASSERT_EQ(out.rejects.size(), 1u);
+  EXPECT_EQ(out.rejects[0].index, 1u);
+  EXPECT_EQ(out.rejects[0].reason, wire::NOT_FINITE);
+  EXPECT_NE(out.rejects[0].message.find("hi on axis 0"), std::string::npos);
+  out = Apply(*host, b);
   ASSERT_EQ(out.rejects.size(), 2u);
   EXPECT_EQ(out.rejects[0].reason, wire::NOT_INTEGRAL);
   EXPECT_NE(out.rejects[0].message.find("insert[1] id 2: lo on axis 0"), std::string::npos);
@@ -215,7 +224,9 @@ TEST(EngineHost, IntegerEngineTakesIntegersInRangeOnly) {
   EXPECT_NE(out.rejects[1].message.find("integer range"), std::string::npos);
   std::vector<uint64_t> unc, col;
   host->Query(&unc, &col);
-  EXPECT_EQ(ToPairs(col), (PairList{{GlobalKey(1, 1), GlobalKey(1, 4)}}));
+  EXPECT_EQ(ToPairs(col), (PairList{{GlobalKey(1, 1), GlobalKey(1, 4)},
+                                    {GlobalKey(1, 1), GlobalKey(1, 5)},
+                                    {GlobalKey(1, 4), GlobalKey(1, 5)}}));
 }
 
 TEST(EngineHost, FloatEngineRoundsDoublesOutward) {
@@ -331,6 +342,86 @@ TEST(EngineHost, FiltersMatchABruteForceFilteredOracle) {
     ASSERT_EQ(reported, want) << "frame " << frame;
     EXPECT_EQ(host->Overlaps(), want.size());
   }
+}
+
+// Several batches per frame with the same-frame transitions the filter bookkeeping exists for:
+// insert then erase, erase then reinsert with the same filter (allowed) or another one (refused
+// when the object was live at the last query), erase-reinsert-erase, and reinsertion of an
+// object inserted in the same frame with another filter (allowed: no event ever named it).
+TEST(EngineHost, FiltersStayExactAcrossSameFrameTransitions) {
+  std::mt19937_64 rng(17);
+  auto host = MakeHost("segmented_sap", 2, CoordinateType::kDouble);
+  using Filter = std::pair<uint64_t, uint64_t>;
+  std::map<uint64_t, Filter> filter;         // live objects' filters
+  std::map<uint64_t, Box<2, double>> boxes;  // live objects' boxes
+  std::map<uint64_t, Filter> at_query;       // filters of the objects live at the last query
+  std::set<std::pair<uint64_t, uint64_t>> reported;
+  size_t refused = 0, reinserted = 0;
+  for (int frame = 0; frame < 300; ++frame) {
+    const int batches = 1 + static_cast<int>(rng() % 4);
+    for (int k = 0; k < batches; ++k) {
+      wire::UpdateBatch b = Batch(1, 2);
+      std::vector<bool> expect_insert_ok;
+      std::set<uint64_t> named;  // one operation per id and batch keeps the model simple
+      for (int i = 0; i < 5; ++i) {
+        const uint64_t id = rng() % 12;
+        if (!named.insert(id).second) continue;
+        const uint64_t key = GlobalKey(1, id);
+        const double x = static_cast<double>(rng() % 10), y = static_cast<double>(rng() % 10);
+        const Box<2, double> box{{x, y}, {x + 3, y + 3}};
+        if (boxes.count(key)) {
+          if (rng() % 2) {
+            b.add_erases(id);
+            boxes.erase(key);
+            filter.erase(key);
+          } else {
+            AddBox(b.mutable_updates(), id, {x, y}, {x + 3, y + 3});
+            boxes[key] = box;
+          }
+          continue;
+        }
+        const Filter f{uint64_t{1} << (rng() % 2), 1 + rng() % 3};
+        AddBox(b.mutable_inserts(), id, {x, y}, {x + 3, y + 3});
+        b.mutable_inserts()->add_category(f.first);
+        b.mutable_inserts()->add_mask(f.second);
+        auto was = at_query.find(key);
+        const bool ok = was == at_query.end() || was->second == f;
+        expect_insert_ok.push_back(ok);
+        if (ok) {
+          boxes[key] = box;
+          filter[key] = f;
+          reinserted += was != at_query.end();
+        }
+      }
+      Outcome out = Apply(*host, b);
+      size_t expect_refused = 0;
+      for (bool ok : expect_insert_ok) expect_refused += !ok;
+      ASSERT_EQ(out.rejects.size(), expect_refused) << "frame " << frame;
+      for (const Reject& r : out.rejects) {
+        EXPECT_EQ(r.reason, wire::BAD_ATTRIBUTE) << r.message;
+        EXPECT_FALSE(expect_insert_ok[r.index]) << r.message;
+      }
+      refused += expect_refused;
+    }
+    std::vector<uint64_t> unc, col;
+    host->Query(&unc, &col);
+    for (auto& p : ToPairs(unc)) ASSERT_EQ(reported.erase(p), 1u) << "frame " << frame;
+    for (auto& p : ToPairs(col)) ASSERT_TRUE(reported.insert(p).second) << "frame " << frame;
+    std::set<std::pair<uint64_t, uint64_t>> want;
+    for (auto& [a, ba] : boxes) {
+      for (auto& [c, bc] : boxes) {
+        if (a >= c || !Overlaps(ba, bc)) continue;
+        const Filter& fa = filter[a];
+        const Filter& fc = filter[c];
+        if ((fa.first & fc.second) && (fc.first & fa.second)) want.insert({a, c});
+      }
+    }
+    ASSERT_EQ(reported, want) << "frame " << frame;
+    ASSERT_EQ(host->Overlaps(), want.size());
+    at_query = filter;
+  }
+  EXPECT_GT(refused, 10u) << "the refused reinsertion path was not exercised";
+  EXPECT_GT(reinserted, 10u) << "the allowed reinsertion path was not exercised";
 }
 
 // Hostile input: valid batches with random bytes flipped, truncated or extended. Whatever

@@ -98,6 +98,22 @@ class EventCollector {
       for (auto& b : batches) Add(b);
     }
   }
+  /// Waits for the next complete frame after the last one this returned (whatever its number).
+  bool NextFrame(FrameEvents* out, std::chrono::milliseconds timeout = 10s) {
+    const auto deadline = std::chrono::steady_clock::now() + timeout;
+    for (;;) {
+      auto it = complete_.upper_bound(last_returned_);
+      if (it != complete_.end()) {
+        last_returned_ = it->first;
+        *out = it->second;
+        return true;
+      }
+      if (std::chrono::steady_clock::now() > deadline) return false;
+      std::vector<wire::EventBatch> batches;
+      if (!sub_->Poll(50ms, &batches).ok()) return false;
+      for (auto& b : batches) Add(b);
+    }
+  }
   /// Frames completed so far (received, not necessarily asked for).
   size_t completed() const { return complete_.size(); }
   /// Sequence numbers seen, in order.
@@ -122,6 +138,7 @@ class EventCollector {
   std::map<uint64_t, FrameEvents> partial_;
   std::map<uint64_t, FrameEvents> complete_;
   std::vector<uint64_t> sequences_;
+  uint64_t last_returned_ = 0;
 };
 
 /// Collects rejections from status reports.
