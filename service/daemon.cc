@@ -185,48 +185,17 @@ void Daemon::ProcessPayload(std::span<const uint8_t> payload, const dds_sample_i
   const auto start = Clock::now();
   ++batches_total_;
   ++interval_batches_;
-  const auto& limits = config_.limits;
   auto batch_reject = [&](uint32_t producer, wire::RejectReason reason, std::string why) {
     ReportRejection(producer, nullptr, Reject{wire::OP_BATCH, 0, 0, reason, std::move(why)});
     FlushRejections();
   };
-  // protobuf parses at most INT_MAX bytes, whatever limits.max_batch_bytes says.
-  if (payload.size() > limits.max_batch_bytes ||
-      payload.size() > static_cast<size_t>(std::numeric_limits<int>::max())) {
-    batch_reject(
-        0, wire::OVERSIZE,
-        "batch of " + std::to_string(payload.size()) +
-            " bytes exceeds limits.max_batch_bytes = " + std::to_string(limits.max_batch_bytes));
-    return;
-  }
-  batch_.Clear();
-  if (!batch_.ParseFromArray(payload.data(), static_cast<int>(payload.size()))) {
-    batch_reject(
-        0, wire::MALFORMED,
-        "payload of " + std::to_string(payload.size()) + " bytes is not a valid UpdateBatch");
+  Reject refused;
+  if (!AdmitBatch(payload, config_.limits, &batch_, &refused)) {
+    // The producer is known once the payload parsed (0 for oversize or malformed payloads).
+    batch_reject(batch_.producer(), refused.reason, std::move(refused.message));
     return;
   }
   const uint32_t producer = batch_.producer();
-  if (batch_.version() != wire::SCHEMA_VERSION_1) {
-    batch_reject(producer, wire::UNSUPPORTED_VERSION,
-                 "schema version " + std::to_string(static_cast<int>(batch_.version())) +
-                     " is not supported (this daemon speaks version 1)");
-    return;
-  }
-  if (producer == 0 || producer > 0xFFFF) {
-    batch_reject(producer, wire::BAD_PRODUCER,
-                 "producer id " + std::to_string(producer) + " is outside 1..65535");
-    return;
-  }
-  const uint64_t items = static_cast<uint64_t>(batch_.inserts().ids_size()) +
-                         static_cast<uint64_t>(batch_.updates().ids_size()) +
-                         static_cast<uint64_t>(batch_.erases_size());
-  if (items > limits.max_batch_items) {
-    batch_reject(producer, wire::OVERSIZE,
-                 "batch of " + std::to_string(items) + " items exceeds limits.max_batch_items = " +
-                     std::to_string(limits.max_batch_items));
-    return;
-  }
   if (!ClaimProducer(producer, info.publication_handle)) {
     batch_reject(producer, wire::PRODUCER_CONFLICT,
                  "producer id " + std::to_string(producer) +

@@ -351,6 +351,45 @@ Status MakeForDimension(const EngineConfig& config, uint64_t max_objects,
 
 }  // namespace
 
+bool AdmitBatch(std::span<const uint8_t> payload, const LimitsConfig& limits,
+                wire::UpdateBatch* batch, Reject* out_reject) {
+  batch->Clear();
+  auto refuse = [&](wire::RejectReason reason, std::string why) {
+    *out_reject = Reject{wire::OP_BATCH, 0, 0, reason, std::move(why)};
+    return false;
+  };
+  // protobuf parses at most INT_MAX bytes, whatever limits.max_batch_bytes says.
+  if (payload.size() > limits.max_batch_bytes ||
+      payload.size() > static_cast<size_t>(std::numeric_limits<int>::max())) {
+    return refuse(wire::OVERSIZE, "batch of " + std::to_string(payload.size()) +
+                                      " bytes exceeds limits.max_batch_bytes = " +
+                                      std::to_string(limits.max_batch_bytes));
+  }
+  if (!batch->ParseFromArray(payload.data(), static_cast<int>(payload.size()))) {
+    batch->Clear();
+    return refuse(wire::MALFORMED, "payload of " + std::to_string(payload.size()) +
+                                       " bytes is not a valid UpdateBatch");
+  }
+  if (batch->version() != wire::SCHEMA_VERSION_1) {
+    return refuse(wire::UNSUPPORTED_VERSION,
+                  "schema version " + std::to_string(static_cast<int>(batch->version())) +
+                      " is not supported (this daemon speaks version 1)");
+  }
+  if (batch->producer() == 0 || batch->producer() > 0xFFFF) {
+    return refuse(wire::BAD_PRODUCER,
+                  "producer id " + std::to_string(batch->producer()) + " is outside 1..65535");
+  }
+  const uint64_t items = static_cast<uint64_t>(batch->inserts().ids_size()) +
+                         static_cast<uint64_t>(batch->updates().ids_size()) +
+                         static_cast<uint64_t>(batch->erases_size());
+  if (items > limits.max_batch_items) {
+    return refuse(wire::OVERSIZE, "batch of " + std::to_string(items) +
+                                      " items exceeds limits.max_batch_items = " +
+                                      std::to_string(limits.max_batch_items));
+  }
+  return true;
+}
+
 Status MakeEngineHost(const EngineConfig& config, uint64_t max_objects,
                       std::unique_ptr<EngineHost>* out) {
   switch (config.dimension) {

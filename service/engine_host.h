@@ -21,6 +21,7 @@
 #include <cstdint>
 #include <functional>
 #include <memory>
+#include <span>
 #include <string>
 #include <vector>
 
@@ -80,6 +81,12 @@ class EngineHost {
   /// The dimension K.
   virtual int Dimension() const = 0;
 };
+
+/// The checks of a whole batch, before its items: size (bytes), protobuf decoding, schema
+/// version, producer id, item count. True with *batch decoded if its items may be applied;
+/// otherwise false and *out_reject says why (op OP_BATCH). The daemon and `bpctl check` share it.
+bool AdmitBatch(std::span<const uint8_t> payload, const LimitsConfig& limits,
+                wire::UpdateBatch* batch, Reject* out_reject);
 
 /// Builds the engine the config names. InvalidArgument for an unknown algorithm, dimension or
 /// coordinate type. max_objects bounds the live count (CAPACITY rejections beyond it).

@@ -32,6 +32,10 @@ class UpdatePublisher {
                        std::unique_ptr<UpdatePublisher>* out);
   /// Waits until the daemon's update reader has matched, so that no batch is lost to discovery.
   Status WaitForDaemon(std::chrono::milliseconds timeout) const;
+  /// Waits until n readers (the daemon, recorders...) have matched.
+  Status WaitForReaders(uint32_t n, std::chrono::milliseconds timeout) const {
+    return writer_.WaitForReaders(n, timeout);
+  }
   /// Stamps (version, producer, batch_seq, sent_time_ns) and publishes batch.
   Status Publish(wire::UpdateBatch* batch);
   /// Publishes payload bytes as they are (replay of recordings; malformed-input tests).

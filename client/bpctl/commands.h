@@ -1,0 +1,90 @@
+// bpctl's commands, as functions so that tests run them in-process. Each returns a process exit
+// status (0 ok, 1 failure, 2 bad arguments) and prints its own errors.
+//
+// Thread safety: one command per thread; StopRequested() is set by SIGINT/SIGTERM (bpctl main)
+// or by RequestStop() (tests).
+#pragma once
+
+#include <cstdint>
+#include <string>
+#include <vector>
+
+#include "bp/workload.h"
+#include "broadphase.pb.h"
+#include "config.h"
+
+namespace bp::bpctl {
+
+/// True once a stop was asked for (Ctrl-C, or RequestStop()).
+bool StopRequested();
+/// Asks every running command to finish (thread-safe).
+void RequestStop();
+/// Clears the stop flag (tests run several commands in one process).
+void ResetStop();
+
+/// Options shared by every command: the deployment, read from the daemon's YAML.
+struct Common {
+  service::Config config;  ///< domain, partition, topics, Cyclone XML, engine, limits
+  double wait_s = 10.0;    ///< how long to wait for the daemon to appear
+};
+
+struct SceneOptions {
+  workload::SceneParams params;
+  double rate_hz = 60.0;     ///< frames per second; 0 = as fast as possible
+  uint64_t frames = 0;       ///< frames after the initial one; 0 = until stopped
+  uint32_t producer = 1;
+  uint64_t max_items = 100'000;  ///< items per batch (a frame larger than this is split)
+  uint32_t readers = 1;      ///< readers to wait for before the first frame (daemon + recorders)
+  bool quiet = false;
+};
+int Scene(const Common& common, const SceneOptions& options);
+
+struct WatchOptions {
+  bool stats = false;       ///< print rates and latency each second instead of events
+  uint64_t frames = 0;      ///< stop after this many frames (0 = until stopped)
+  double seconds = 0;       ///< stop after this long (0 = until stopped)
+  int32_t depth = 256;      ///< subscriber history
+};
+int Watch(const Common& common, const WatchOptions& options);
+
+struct StatusOptions {
+  bool follow = false;
+  double timeout_s = 5.0;
+};
+int ShowStatus(const Common& common, const StatusOptions& options);
+
+struct RecordOptions {
+  std::string file;
+  double seconds = 0;       ///< stop after this long (0 = until stopped)
+  uint64_t batches = 0;     ///< stop after this many batches (0 = until stopped)
+  std::string note;
+};
+int Record(const Common& common, const RecordOptions& options);
+
+struct ReplayOptions {
+  std::string file;
+  double speed = 1.0;       ///< 2 = twice the recorded pace
+  bool fast = false;        ///< as fast as possible (back-pressure still applies)
+  bool progress = true;
+};
+int Replay(const Common& common, const ReplayOptions& options);
+
+struct CheckOptions {
+  std::string file;
+  std::string engine;       ///< "" = the config's engine.algorithm
+  bool quiet = false;
+};
+/// The result of a check, for tests.
+struct CheckResult {
+  uint64_t batches = 0;
+  uint64_t frames = 0;
+  uint64_t events = 0;
+  uint64_t rejected = 0;
+  bool identical = true;
+  /// Every frame's events in order: (frame, uncollide?, a, b).
+  std::vector<std::pair<uint64_t, std::pair<uint64_t, uint64_t>>> collides;
+  std::vector<std::pair<uint64_t, std::pair<uint64_t, uint64_t>>> uncollides;
+};
+int Check(const Common& common, const CheckOptions& options, CheckResult* out = nullptr);
+
+}  // namespace bp::bpctl

@@ -1,0 +1,39 @@
+#include "common.h"
+
+#include <atomic>
+
+namespace bp::bpctl {
+namespace {
+std::atomic<bool> stop_requested{false};
+}  // namespace
+
+bool StopRequested() { return stop_requested.load(); }
+void RequestStop() { stop_requested.store(true); }
+void ResetStop() { stop_requested.store(false); }
+
+std::unique_ptr<client::Connection> Connect(const Common& common) {
+  const auto& dds = common.config.dds;
+  client::ConnectionOptions options;
+  options.domain = dds.domain;
+  options.partition = dds.partition;
+  options.topics = {dds.topics.updates, dds.topics.events, dds.topics.status};
+  if (!dds.cyclone_config.empty()) {
+    if (Status s = client::ReadTextFile(dds.cyclone_config, &options.cyclone_xml); !s.ok()) {
+      std::fprintf(stderr, "bpctl: dds.cyclone_config: %s\n", s.ToString().c_str());
+      return nullptr;
+    }
+  }
+  std::unique_ptr<client::Connection> connection;
+  if (Status s = client::Connection::Open(options, &connection); !s.ok()) {
+    std::fprintf(stderr, "bpctl: cannot join DDS domain %u: %s\n", dds.domain,
+                 s.ToString().c_str());
+    return nullptr;
+  }
+  return connection;
+}
+
+std::string KeyName(uint64_t key) {
+  return std::to_string(key >> 48) + ":" + std::to_string(key & ((uint64_t{1} << 48) - 1));
+}
+
+}  // namespace bp::bpctl

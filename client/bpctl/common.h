@@ -1,0 +1,25 @@
+// Pieces shared by bpctl's commands: connecting to the deployment of a daemon config.
+#pragma once
+
+#include <chrono>
+#include <cstdio>
+#include <memory>
+#include <string>
+
+#include "bp/client/connection.h"
+#include "commands.h"
+
+namespace bp::bpctl {
+
+/// Opens a connection to the deployment the config describes; prints the error on failure.
+std::unique_ptr<client::Connection> Connect(const Common& common);
+
+/// Seconds since an instant, as double.
+inline double SecondsSince(std::chrono::steady_clock::time_point t) {
+  return std::chrono::duration<double>(std::chrono::steady_clock::now() - t).count();
+}
+
+/// "producer:id" of a global key.
+std::string KeyName(uint64_t key);
+
+}  // namespace bp::bpctl

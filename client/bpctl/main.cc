@@ -1,0 +1,125 @@
+// bpctl: the broadphase command line. `bpctl --help`; every command takes the daemon's YAML
+// (--config) to know the deployment: domain, partition, topics, Cyclone XML, engine, limits.
+// Exit status: 0 ok, 1 failure (no daemon, I/O, a difference found by check), 2 bad arguments.
+#include <signal.h>
+
+#include <CLI/CLI.hpp>
+#include <cstdio>
+#include <filesystem>
+
+#include "bp/workload_scenarios.h"
+#include "commands.h"
+
+namespace {
+
+void OnSignal(int) { bp::bpctl::RequestStop(); }
+
+}  // namespace
+
+int main(int argc, char** argv) {
+  CLI::App app{"bpctl: publish scenes, watch events, record, replay and check update streams of "
+               "broadphased"};
+  app.require_subcommand(1);
+  std::string config_path;
+  double wait_s = 10.0;
+  app.add_option("-c,--config", config_path,
+                 "the daemon's YAML (default: config/broadphased.yaml if it exists, else "
+                 "built-in defaults)");
+  app.add_option("--wait", wait_s, "seconds to wait for the daemon")->check(CLI::PositiveNumber);
+
+  bp::bpctl::SceneOptions scene;
+  std::string scenario;
+  auto* scene_cmd = app.add_subcommand("scene", "publish the WORKLOADS.md scene at a rate");
+  scene_cmd->add_option("--scenario", scenario, "a named row: S1-10k, S2a, ... (sets n/moving/churn/dim)");
+  scene_cmd->add_option("-n,--objects", scene.params.n, "live objects")->check(CLI::PositiveNumber);
+  scene_cmd->add_option("--moving", scene.params.moving, "moving objects per frame");
+  scene_cmd->add_option("--churn", scene.params.churn, "removals (= insertions) per frame");
+  scene_cmd->add_option("--seed", scene.params.seed, "random seed");
+  scene_cmd->add_option("--dim", scene.params.dim, "2 or 3")->check(CLI::Range(2, 3));
+  scene_cmd->add_option("--rate", scene.rate_hz, "frames per second (0 = as fast as possible)")
+      ->check(CLI::NonNegativeNumber);
+  scene_cmd->add_option("--frames", scene.frames, "frames after the first (0 = until Ctrl-C)");
+  scene_cmd->add_option("--producer", scene.producer, "producer id")->check(CLI::Range(1, 65535));
+  scene_cmd->add_option("--readers", scene.readers,
+                        "update readers to wait for (2 = the daemon and a recorder)")
+      ->check(CLI::PositiveNumber);
+  scene_cmd->add_flag("-q,--quiet", scene.quiet, "no progress lines");
+
+  bp::bpctl::WatchOptions watch;
+  auto* watch_cmd = app.add_subcommand("watch", "print events, or rates and latency (--stats)");
+  watch_cmd->add_flag("--stats", watch.stats, "one line per second: rates, update->event latency");
+  watch_cmd->add_option("--frames", watch.frames, "stop after this many frames");
+  watch_cmd->add_option("--seconds", watch.seconds, "stop after this many seconds");
+
+  bp::bpctl::StatusOptions status;
+  auto* status_cmd = app.add_subcommand("status", "show the daemon's health and statistics");
+  status_cmd->add_flag("-f,--follow", status.follow, "keep printing reports");
+  status_cmd->add_option("--timeout", status.timeout_s, "seconds to wait for a report");
+
+  bp::bpctl::RecordOptions record;
+  auto* record_cmd = app.add_subcommand("record", "write the update stream to a file");
+  record_cmd->add_option("file", record.file, "recording to create")->required();
+  record_cmd->add_option("--seconds", record.seconds, "stop after this many seconds");
+  record_cmd->add_option("--batches", record.batches, "stop after this many batches");
+  record_cmd->add_option("--note", record.note, "a note stored in the header");
+
+  bp::bpctl::ReplayOptions replay;
+  auto* replay_cmd = app.add_subcommand("replay", "republish a recording");
+  replay_cmd->add_option("file", replay.file, "recording")->required()->check(CLI::ExistingFile);
+  replay_cmd->add_option("--speed", replay.speed, "pace factor (2 = twice as fast)")
+      ->check(CLI::PositiveNumber);
+  replay_cmd->add_flag("--fast", replay.fast, "as fast as the daemon takes it");
+  replay_cmd->add_flag("--no-progress", [&](int64_t) { replay.progress = false; }, "no progress bar");
+
+  bp::bpctl::CheckOptions check;
+  auto* check_cmd = app.add_subcommand(
+      "check", "replay a recording through an embedded engine and the brute-force oracle");
+  check_cmd->add_option("file", check.file, "recording")->required()->check(CLI::ExistingFile);
+  check_cmd->add_option("--engine", check.engine, "algorithm (default: the config's)");
+
+  try {
+    app.parse(argc, argv);
+  } catch (const CLI::ParseError& e) {
+    return app.exit(e) == 0 ? 0 : 2;
+  }
+
+  bp::bpctl::Common common;
+  if (config_path.empty() && std::filesystem::exists("config/broadphased.yaml")) {
+    config_path = "config/broadphased.yaml";
+  }
+  bp::Status loaded = config_path.empty()
+                          ? bp::service::ParseConfig("", "<defaults>", &common.config)
+                          : bp::service::LoadConfigFile(config_path, &common.config);
+  if (!loaded.ok()) {
+    std::fprintf(stderr, "bpctl: configuration refused:\n%s\n", loaded.message().c_str());
+    return 2;
+  }
+  common.wait_s = wait_s;
+  struct sigaction action {};
+  action.sa_handler = OnSignal;
+  sigaction(SIGINT, &action, nullptr);
+  sigaction(SIGTERM, &action, nullptr);
+
+  if (*scene_cmd) {
+    if (!scenario.empty()) {
+      const auto* row = bp::workload::FindGolden(scenario);
+      if (!row) {
+        std::fprintf(stderr, "bpctl scene: unknown scenario '%s'\n", scenario.c_str());
+        return 2;
+      }
+      const uint64_t seed = scene.params.seed;
+      scene.params = row->Params();
+      scene.params.seed = seed;
+    }
+    if (!scene_cmd->count("--dim") && scenario.empty()) {
+      scene.params.dim = common.config.engine.dimension;
+    }
+    return bp::bpctl::Scene(common, scene);
+  }
+  if (*watch_cmd) return bp::bpctl::Watch(common, watch);
+  if (*status_cmd) return bp::bpctl::ShowStatus(common, status);
+  if (*record_cmd) return bp::bpctl::Record(common, record);
+  if (*replay_cmd) return bp::bpctl::Replay(common, replay);
+  if (*check_cmd) return bp::bpctl::Check(common, check);
+  return 2;
+}

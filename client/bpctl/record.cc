@@ -1,0 +1,157 @@
+// bpctl record (the update stream to a file) and bpctl replay (a file back onto the topic).
+#include <thread>
+
+#include "bp/client/update_publisher.h"
+#include "bp/wire/recording.h"
+#include "common.h"
+
+namespace bp::bpctl {
+
+int Record(const Common& common, const RecordOptions& options) {
+  auto connection = Connect(common);
+  if (!connection) return 1;
+  // The recorder reads the updates topic like the daemon does (reliable, KEEP_ALL, bounded), so
+  // it sees every batch; a recorder slower than the producers slows them down, it never drops.
+  dds::Qos qos;
+  client::qos::UpdatesReader(qos.get(), common.config.dds.update_queue);
+  dds::Reader reader;
+  dds::WaitSet waitset;
+  if (Status s = dds::Reader::Create(connection->participant(), connection->updates_topic(), qos,
+                                     &reader);
+      !s.ok()) {
+    std::fprintf(stderr, "bpctl record: %s\n", s.ToString().c_str());
+    return 1;
+  }
+  if (Status s = dds::WaitSet::Create(connection->participant(), &waitset); !s.ok() ||
+                                                                            !waitset.Attach(reader).ok()) {
+    std::fprintf(stderr, "bpctl record: cannot create a waitset\n");
+    return 1;
+  }
+  wire::RecordingWriter writer;
+  wire::RecordingHeader header;
+  header.set_created_ns(client::WallClockNs());
+  header.set_topic(common.config.dds.topics.updates);
+  header.set_note(options.note);
+  if (Status s = writer.Open(options.file, header); !s.ok()) {
+    std::fprintf(stderr, "bpctl record: %s\n", s.ToString().c_str());
+    return 1;
+  }
+  std::fprintf(stderr, "bpctl record: recording topic '%s' to %s (Ctrl-C to stop)\n",
+               common.config.dds.topics.updates.c_str(), options.file.c_str());
+  const auto start = std::chrono::steady_clock::now();
+  auto report_at = start + std::chrono::seconds(1);
+  Status failure;
+  while (!StopRequested() && failure.ok()) {
+    if (options.seconds > 0 && SecondsSince(start) >= options.seconds) break;
+    if (options.batches > 0 && writer.batches() >= options.batches) break;
+    int triggered = 0;
+    if (Status s = waitset.Wait(std::chrono::milliseconds(100), &triggered); !s.ok()) {
+      failure = s;
+      break;
+    }
+    size_t taken = 0;
+    Status s = reader.Take(
+        64,
+        [&](const dds::Received& r) {
+          if (!failure.ok()) return;
+          if (options.batches > 0 && writer.batches() >= options.batches) return;
+          failure = writer.Append(client::WallClockNs(),
+                                  std::string_view(reinterpret_cast<const char*>(r.payload.data()),
+                                                   r.payload.size()));
+        },
+        &taken);
+    if (!s.ok()) failure = s;
+    if (std::chrono::steady_clock::now() >= report_at) {
+      std::fprintf(stderr, "bpctl record: %llu batches, %.1f MB\n",
+                   static_cast<unsigned long long>(writer.batches()),
+                   static_cast<double>(writer.bytes()) / 1e6);
+      report_at += std::chrono::seconds(1);
+      (void)writer.Flush();
+    }
+  }
+  Status closed = writer.Close();
+  if (!failure.ok() || !closed.ok()) {
+    std::fprintf(stderr, "bpctl record: %s\n",
+                 (!failure.ok() ? failure : closed).ToString().c_str());
+    return 1;
+  }
+  std::fprintf(stderr, "bpctl record: %llu batches written to %s\n",
+               static_cast<unsigned long long>(writer.batches()), options.file.c_str());
+  return 0;
+}
+
+int Replay(const Common& common, const ReplayOptions& options) {
+  if (!(options.speed > 0)) {
+    std::fprintf(stderr, "bpctl replay: --speed must be > 0\n");
+    return 2;
+  }
+  // Read the whole recording first: the pace must not depend on the disk.
+  wire::RecordingReader reader;
+  if (Status s = reader.Open(options.file); !s.ok()) {
+    std::fprintf(stderr, "bpctl replay: %s\n", s.ToString().c_str());
+    return 1;
+  }
+  std::vector<wire::RecordedBatch> batches;
+  for (;;) {
+    wire::RecordedBatch b;
+    bool end = false;
+    if (Status s = reader.Next(&b, &end); !s.ok()) {
+      std::fprintf(stderr, "bpctl replay: %s\n", s.ToString().c_str());
+      return 1;
+    }
+    if (end) break;
+    batches.push_back(std::move(b));
+  }
+  auto connection = Connect(common);
+  if (!connection) return 1;
+  // One writer for every producer of the recording; the payloads go out byte for byte.
+  std::unique_ptr<client::UpdatePublisher> pub;
+  if (Status s = client::UpdatePublisher::Create(
+          *connection, 1, std::chrono::milliseconds(common.config.dds.write_timeout_ms), &pub);
+      !s.ok()) {
+    std::fprintf(stderr, "bpctl replay: %s\n", s.ToString().c_str());
+    return 1;
+  }
+  const auto wait = std::chrono::milliseconds(static_cast<int64_t>(common.wait_s * 1000));
+  if (Status s = pub->WaitForDaemon(wait); !s.ok()) {
+    std::fprintf(stderr, "bpctl replay: no daemon listening (%s)\n", s.ToString().c_str());
+    return 1;
+  }
+  const auto start = std::chrono::steady_clock::now();
+  const uint64_t t0 = batches.empty() ? 0 : batches.front().time_ns();
+  uint64_t retries = 0;
+  int last_percent = -1;
+  for (size_t i = 0; i < batches.size() && !StopRequested(); ++i) {
+    const auto& b = batches[i];
+    if (!options.fast) {
+      const double offset_s =
+          static_cast<double>(b.time_ns() >= t0 ? b.time_ns() - t0 : 0) / 1e9 / options.speed;
+      std::this_thread::sleep_until(
+          start + std::chrono::duration_cast<std::chrono::steady_clock::duration>(
+                      std::chrono::duration<double>(offset_s)));
+    }
+    for (;;) {
+      Status s = pub->PublishRaw(b.payload());
+      if (s.ok()) break;
+      if (s.code() != StatusCode::kDeadlineExceeded || StopRequested()) {
+        std::fprintf(stderr, "\nbpctl replay: batch %zu: %s\n", i, s.ToString().c_str());
+        return 1;
+      }
+      ++retries;
+    }
+    const int percent = static_cast<int>(100 * (i + 1) / batches.size());
+    if (options.progress && percent != last_percent) {
+      last_percent = percent;
+      const int bar = percent / 4;
+      std::fprintf(stderr, "\r[%.*s%*s] %3d%% %zu/%zu batches", bar,
+                   "=========================", 25 - bar, "", percent, i + 1, batches.size());
+    }
+  }
+  if (options.progress) std::fprintf(stderr, "\n");
+  (void)pub->Flush(std::chrono::seconds(10));
+  std::fprintf(stderr, "bpctl replay: %zu batches in %.2f s, %llu back-pressure retries\n",
+               batches.size(), SecondsSince(start), static_cast<unsigned long long>(retries));
+  return StopRequested() ? 1 : 0;
+}
+
+}  // namespace bp::bpctl

@@ -1,0 +1,130 @@
+// bpctl scene: publishes the WORKLOADS.md scene at a rate.
+#include <thread>
+
+#include "bp/client/batch_builder.h"
+#include "bp/client/update_publisher.h"
+#include "common.h"
+
+namespace bp::bpctl {
+namespace {
+
+// Publishes ops as one frame in batches of at most max_items items; the last closes the frame.
+// Retries a batch the daemon's back-pressure refused; false when stopped or on a hard error.
+bool PublishFrame(client::UpdatePublisher& pub, const workload::FrameOps& ops, int dim,
+                  uint64_t frame, uint64_t max_items, uint64_t* retries) {
+  wire::UpdateBatch batch;
+  size_t e = 0, u = 0, i = 0;
+  do {
+    batch.Clear();
+    batch.set_dim(static_cast<uint32_t>(dim));
+    batch.set_frame(frame);
+    uint64_t items = 0;
+    for (; e < ops.erases.size() && items < max_items; ++e, ++items) {
+      batch.add_erases(ops.erases[e]);
+    }
+    for (; i < ops.inserts.size() && items < max_items; ++i, ++items) {
+      client::AddSceneBox(batch.mutable_inserts(), ops.inserts[i], dim);
+    }
+    for (; u < ops.updates.size() && items < max_items; ++u, ++items) {
+      client::AddSceneBox(batch.mutable_updates(), ops.updates[u], dim);
+    }
+    const bool last = e == ops.erases.size() && i == ops.inserts.size() && u == ops.updates.size();
+    batch.set_end_of_frame(last);
+    for (;;) {
+      Status s = pub.Publish(&batch);
+      if (s.ok()) break;
+      if (s.code() != StatusCode::kDeadlineExceeded) {
+        std::fprintf(stderr, "bpctl scene: %s\n", s.ToString().c_str());
+        return false;
+      }
+      ++*retries;  // the daemon is saturated: wait and retry the same batch
+      if (StopRequested()) return false;
+    }
+  } while (e < ops.erases.size() || i < ops.inserts.size() || u < ops.updates.size());
+  return true;
+}
+
+}  // namespace
+
+int Scene(const Common& common, const SceneOptions& options) {
+  if (options.params.dim != common.config.engine.dimension) {
+    std::fprintf(stderr, "bpctl scene: the scene is %d-D but the daemon's config says %d-D\n",
+                 options.params.dim, common.config.engine.dimension);
+    return 2;
+  }
+  auto connection = Connect(common);
+  if (!connection) return 1;
+  std::unique_ptr<client::UpdatePublisher> pub;
+  if (Status s = client::UpdatePublisher::Create(
+          *connection, options.producer,
+          std::chrono::milliseconds(common.config.dds.write_timeout_ms), &pub);
+      !s.ok()) {
+    std::fprintf(stderr, "bpctl scene: %s\n", s.ToString().c_str());
+    return 1;
+  }
+  const auto wait = std::chrono::milliseconds(static_cast<int64_t>(common.wait_s * 1000));
+  if (Status s = pub->WaitForReaders(options.readers, wait); !s.ok()) {
+    std::fprintf(stderr, "bpctl scene: no daemon on domain %u partition '%s' (%s)\n",
+                 common.config.dds.domain, common.config.dds.partition.c_str(),
+                 s.ToString().c_str());
+    return 1;
+  }
+  const auto& p = options.params;
+  if (!options.quiet) {
+    std::fprintf(stderr,
+                 "bpctl scene: n %u, moving %u, churn %u, %d-D, seed %llu, producer %u, %.1f Hz\n",
+                 p.n, p.moving, p.churn, p.dim, static_cast<unsigned long long>(p.seed),
+                 options.producer, options.rate_hz);
+  }
+  workload::Scene scene(p);
+  workload::FrameOps ops;
+  ops.inserts = scene.Initial();
+  uint64_t retries = 0;
+  const auto start = std::chrono::steady_clock::now();
+  auto report_at = start + std::chrono::seconds(1);
+  uint64_t reported_frames = 0;
+  auto last_report = start;
+  const auto period = options.rate_hz > 0
+                          ? std::chrono::duration_cast<std::chrono::steady_clock::duration>(
+                                std::chrono::duration<double>(1.0 / options.rate_hz))
+                          : std::chrono::steady_clock::duration::zero();
+  auto next = start;
+  uint64_t frame = 0;
+  uint64_t late = 0;
+  for (;;) {
+    if (!PublishFrame(*pub, ops, p.dim, frame + 1, options.max_items, &retries)) break;
+    ++frame;
+    if (options.frames != 0 && frame > options.frames) break;
+    if (StopRequested()) break;
+    const auto now = std::chrono::steady_clock::now();
+    if (!options.quiet && now >= report_at) {
+      const double elapsed = std::chrono::duration<double>(now - last_report).count();
+      std::fprintf(stderr, "bpctl scene: frame %llu, %.1f frames/s, %llu late, %llu retries\n",
+                   static_cast<unsigned long long>(frame),
+                   static_cast<double>(frame - reported_frames) / elapsed,
+                   static_cast<unsigned long long>(late), static_cast<unsigned long long>(retries));
+      reported_frames = frame;
+      last_report = now;
+      report_at = now + std::chrono::seconds(1);
+    }
+    scene.NextFrame(&ops);
+    next += period;
+    if (next > std::chrono::steady_clock::now()) {
+      std::this_thread::sleep_until(next);
+    } else if (period.count() > 0) {
+      ++late;  // the frame took longer than the period: publish the next one at once
+      next = std::chrono::steady_clock::now();
+    }
+  }
+  (void)pub->Flush(std::chrono::seconds(5));
+  if (!options.quiet) {
+    const double seconds = SecondsSince(start);
+    std::fprintf(stderr, "bpctl scene: published %llu frames in %.2f s (%.1f frames/s), %llu late\n",
+                 static_cast<unsigned long long>(frame), seconds,
+                 static_cast<double>(frame) / std::max(seconds, 1e-9),
+                 static_cast<unsigned long long>(late));
+  }
+  return 0;
+}
+
+}  // namespace bp::bpctl

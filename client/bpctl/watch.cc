@@ -1,0 +1,169 @@
+// bpctl watch (events or live statistics) and bpctl status (daemon health).
+#include <algorithm>
+#include <vector>
+
+#include "bp/client/subscriber.h"
+#include "bp/client/update_publisher.h"
+#include "common.h"
+
+namespace bp::bpctl {
+namespace {
+
+double Percentile(std::vector<double>& v, double p) {
+  if (v.empty()) return 0;
+  const size_t k = std::min(v.size() - 1, static_cast<size_t>(p * static_cast<double>(v.size())));
+  std::nth_element(v.begin(), v.begin() + static_cast<std::ptrdiff_t>(k), v.end());
+  return v[k];
+}
+
+const char* HealthName(wire::Health h) {
+  switch (h) {
+    case wire::STARTING:
+      return "starting";
+    case wire::SERVING:
+      return "serving";
+    case wire::STOPPING:
+      return "stopping";
+    default:
+      return "unknown";
+  }
+}
+
+}  // namespace
+
+int Watch(const Common& common, const WatchOptions& options) {
+  auto connection = Connect(common);
+  if (!connection) return 1;
+  std::unique_ptr<client::EventSubscriber> sub;
+  if (Status s = client::EventSubscriber::Create(*connection, options.depth, &sub); !s.ok()) {
+    std::fprintf(stderr, "bpctl watch: %s\n", s.ToString().c_str());
+    return 1;
+  }
+  const auto wait = std::chrono::milliseconds(static_cast<int64_t>(common.wait_s * 1000));
+  if (Status s = sub->WaitForDaemon(wait); !s.ok()) {
+    std::fprintf(stderr, "bpctl watch: no daemon on domain %u partition '%s' (%s)\n",
+                 common.config.dds.domain, common.config.dds.partition.c_str(),
+                 s.ToString().c_str());
+    return 1;
+  }
+  const auto start = std::chrono::steady_clock::now();
+  auto window_start = start;
+  uint64_t frames = 0, window_frames = 0, window_collides = 0, window_uncollides = 0;
+  uint64_t objects = 0, overlaps = 0;
+  std::vector<double> latency_ms;
+  std::vector<wire::EventBatch> batches;
+  while (!StopRequested()) {
+    if (options.seconds > 0 && SecondsSince(start) >= options.seconds) break;
+    if (options.frames > 0 && frames >= options.frames) break;
+    batches.clear();
+    if (Status s = sub->Poll(std::chrono::milliseconds(100), &batches); !s.ok()) {
+      std::fprintf(stderr, "bpctl watch: %s\n", s.ToString().c_str());
+      return 1;
+    }
+    const uint64_t now_ns = client::WallClockNs();
+    for (const auto& b : batches) {
+      if (!options.stats) {
+        for (int i = 0; i + 1 < b.uncollide_size(); i += 2) {
+          std::printf("%llu uncollide %s %s\n", static_cast<unsigned long long>(b.frame()),
+                      KeyName(b.uncollide(i)).c_str(), KeyName(b.uncollide(i + 1)).c_str());
+        }
+        for (int i = 0; i + 1 < b.collide_size(); i += 2) {
+          std::printf("%llu collide %s %s\n", static_cast<unsigned long long>(b.frame()),
+                      KeyName(b.collide(i)).c_str(), KeyName(b.collide(i + 1)).c_str());
+        }
+      }
+      window_collides += static_cast<uint64_t>(b.collide_size()) / 2;
+      window_uncollides += static_cast<uint64_t>(b.uncollide_size()) / 2;
+      if (!b.last_part()) continue;
+      ++frames;
+      ++window_frames;
+      objects = b.objects();
+      overlaps = b.overlaps();
+      if (b.source_sent_time_ns() != 0 && now_ns >= b.source_sent_time_ns()) {
+        latency_ms.push_back(static_cast<double>(now_ns - b.source_sent_time_ns()) / 1e6);
+      }
+    }
+    if (!options.stats) {
+      std::fflush(stdout);
+      continue;
+    }
+    const double window = SecondsSince(window_start);
+    if (window >= 1.0) {
+      std::printf(
+          "objects %llu | overlaps %llu | %.1f frames/s | %.0f collides/s | %.0f uncollides/s | "
+          "update->event p50 %.2f ms p99 %.2f ms | gaps %llu\n",
+          static_cast<unsigned long long>(objects), static_cast<unsigned long long>(overlaps),
+          static_cast<double>(window_frames) / window,
+          static_cast<double>(window_collides) / window,
+          static_cast<double>(window_uncollides) / window, Percentile(latency_ms, 0.5),
+          Percentile(latency_ms, 0.99), static_cast<unsigned long long>(sub->gaps()));
+      std::fflush(stdout);
+      window_start = std::chrono::steady_clock::now();
+      window_frames = window_collides = window_uncollides = 0;
+      latency_ms.clear();
+    }
+  }
+  return 0;
+}
+
+int ShowStatus(const Common& common, const StatusOptions& options) {
+  auto connection = Connect(common);
+  if (!connection) return 1;
+  std::unique_ptr<client::StatusSubscriber> sub;
+  if (Status s = client::StatusSubscriber::Create(*connection, 64, &sub); !s.ok()) {
+    std::fprintf(stderr, "bpctl status: %s\n", s.ToString().c_str());
+    return 1;
+  }
+  const auto start = std::chrono::steady_clock::now();
+  bool any = false;
+  std::vector<wire::DaemonStatus> reports;
+  while (!StopRequested()) {
+    if (!options.follow && SecondsSince(start) >= options.timeout_s) break;
+    reports.clear();
+    if (Status s = sub->Poll(std::chrono::milliseconds(100), &reports); !s.ok()) {
+      std::fprintf(stderr, "bpctl status: %s\n", s.ToString().c_str());
+      return 1;
+    }
+    // Without --follow only the newest report matters (a late joiner receives the last 16).
+    const size_t first = options.follow || reports.empty() ? 0 : reports.size() - 1;
+    for (size_t k = first; k < reports.size(); ++k) {
+      const wire::DaemonStatus& r = reports[k];
+      any = true;
+      std::printf("%s: %s, engine %s %u-D %s, frame %llu, objects %llu, overlaps %llu, "
+                  "producers %u, rejected %llu, event write failures %llu\n",
+                  r.daemon().c_str(), HealthName(r.health()), r.engine().c_str(), r.dim(),
+                  r.coordinate().c_str(), static_cast<unsigned long long>(r.frame()),
+                  static_cast<unsigned long long>(r.objects()),
+                  static_cast<unsigned long long>(r.overlaps()), r.producers(),
+                  static_cast<unsigned long long>(r.rejected_total()),
+                  static_cast<unsigned long long>(r.event_write_failures()));
+      if (r.has_interval() && r.interval().seconds() > 0) {
+        const auto& i = r.interval();
+        std::printf("  last %.1f s: %.1f frames/s, %.0f updates/s, %.0f events/s, frame p50 %.3f "
+                    "ms p99 %.3f ms max %.3f ms\n",
+                    i.seconds(), static_cast<double>(i.frames()) / i.seconds(),
+                    static_cast<double>(i.updates()) / i.seconds(),
+                    static_cast<double>(i.events()) / i.seconds(), i.frame_ms_p50(),
+                    i.frame_ms_p99(), i.frame_ms_max());
+      }
+      for (const auto& j : r.rejections()) {
+        std::printf("  rejected (producer %u, frame %llu): %s\n", j.producer(),
+                    static_cast<unsigned long long>(j.frame()), j.message().c_str());
+      }
+      if (r.rejections_not_listed() > 0) {
+        std::printf("  ... and %llu more rejections\n",
+                    static_cast<unsigned long long>(r.rejections_not_listed()));
+      }
+    }
+    std::fflush(stdout);
+    if (any && !options.follow) break;
+  }
+  if (!any) {
+    std::fprintf(stderr, "bpctl status: no report from a daemon on domain %u partition '%s'\n",
+                 common.config.dds.domain, common.config.dds.partition.c_str());
+    return 1;
+  }
+  return 0;
+}
+
+}  // namespace bp::bpctl
