@@ -71,7 +71,7 @@ struct DdsConfig {
   TopicsConfig topics;         ///< non-empty, DDS topic-name characters only [A-Za-z0-9_/]
   int write_timeout_ms = 100;  ///< 1..60000: max blocking time of dds_write
   int event_history = 64;      ///< 1..100000: KEEP_LAST depth of the events writer
-  int update_queue = 256;      ///< 1..100000: resource limit (max samples) of the updates reader
+  int update_queue = 32;       ///< 1..100000: resource limit (max samples) of the updates reader
 
   /// Member-wise equality.
   bool operator==(const DdsConfig&) const = default;

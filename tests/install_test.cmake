@@ -1,5 +1,6 @@
 # Installs the build tree into a scratch prefix, then configures, builds and runs the standalone
-# engine example against it with find_package(broadphase): the engine is usable alone.
+# examples against it: the engine alone (find_package(broadphase)) and the client library
+# (find_package(broadphase COMPONENTS client)).
 # Arguments: -DBUILD_DIR= -DSOURCE_DIR= -DWORK_DIR= -DCXX_FLAGS= (the build's sanitizer flags)
 file(REMOVE_RECURSE ${WORK_DIR})
 execute_process(COMMAND ${CMAKE_COMMAND} --install ${BUILD_DIR} --prefix ${WORK_DIR}/prefix
@@ -20,4 +21,21 @@ endif()
 execute_process(COMMAND ${WORK_DIR}/build/engine_standalone RESULT_VARIABLE rc)
 if(NOT rc EQUAL 0)
   message(FATAL_ERROR "the example reported wrong events: ${rc}")
+endif()
+
+# The client library: configure, build and run (no daemon on that domain: it builds a batch,
+# waits briefly and says so).
+execute_process(COMMAND ${CMAKE_COMMAND} -S ${SOURCE_DIR}/examples/client_standalone
+  -B ${WORK_DIR}/client-build -G Ninja -DCMAKE_PREFIX_PATH=${WORK_DIR}/prefix
+  "-DCMAKE_CXX_FLAGS=${CXX_FLAGS}" RESULT_VARIABLE rc)
+if(NOT rc EQUAL 0)
+  message(FATAL_ERROR "configuring the client example against the installed package failed: ${rc}")
+endif()
+execute_process(COMMAND ${CMAKE_COMMAND} --build ${WORK_DIR}/client-build RESULT_VARIABLE rc)
+if(NOT rc EQUAL 0)
+  message(FATAL_ERROR "building the client example failed: ${rc}")
+endif()
+execute_process(COMMAND ${WORK_DIR}/client-build/client_standalone 15 200 RESULT_VARIABLE rc)
+if(NOT rc EQUAL 0)
+  message(FATAL_ERROR "the client example failed: ${rc}")
 endif()

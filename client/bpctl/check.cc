@@ -1,13 +1,13 @@
 // bpctl check: replays a recording through an embedded engine and the brute-force oracle, with
 // the daemon's own admission and validation (AdmitBatch, EngineHost), and reports the first
 // difference. Frames close on end_of_frame batches, as in the daemon's default mode.
-#include <fmt/format.h>
-
 #include <set>
 
-#include "bp/wire/recording.h"
 #include "common.h"
 #include "engine_host.h"
+#include <fmt/format.h>
+
+#include "bp/wire/recording.h"
 
 namespace bp::bpctl {
 namespace {
@@ -82,8 +82,10 @@ int Check(const Common& common, const CheckOptions& options, CheckResult* out) {
     }
     service::ApplyCounts counts_e, counts_g;
     std::vector<std::string> rejects_e, rejects_g;
-    engine->Apply(batch, [&](service::Reject&& r) { rejects_e.push_back(r.message); }, &counts_e);
-    oracle->Apply(batch, [&](service::Reject&& r) { rejects_g.push_back(r.message); }, &counts_g);
+    engine->Apply(
+        batch, [&](service::Reject&& r) { rejects_e.push_back(r.message); }, &counts_e);
+    oracle->Apply(
+        batch, [&](service::Reject&& r) { rejects_g.push_back(r.message); }, &counts_g);
     result.rejected += rejects_e.size();
     if (first_rejection.empty() && !rejects_e.empty()) first_rejection = rejects_e.front();
     if (rejects_e != rejects_g) {
@@ -115,12 +117,13 @@ int Check(const Common& common, const CheckOptions& options, CheckResult* out) {
     }
   }
   if (!options.quiet) {
-    std::printf("%s: %llu batches, %llu frames, %llu events, %llu rejected items: engine '%s' "
-                "identical to brute force\n",
-                options.file.c_str(), static_cast<unsigned long long>(result.batches),
-                static_cast<unsigned long long>(result.frames),
-                static_cast<unsigned long long>(result.events),
-                static_cast<unsigned long long>(result.rejected), engine->Name().c_str());
+    std::printf(
+        "%s: %llu batches, %llu frames, %llu events, %llu rejected items: engine '%s' "
+        "identical to brute force\n",
+        options.file.c_str(), static_cast<unsigned long long>(result.batches),
+        static_cast<unsigned long long>(result.frames),
+        static_cast<unsigned long long>(result.events),
+        static_cast<unsigned long long>(result.rejected), engine->Name().c_str());
     if (!first_rejection.empty()) std::printf("  first rejection: %s\n", first_rejection.c_str());
   }
   return 0;

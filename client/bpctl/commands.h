@@ -9,9 +9,10 @@
 #include <string>
 #include <vector>
 
-#include "bp/workload.h"
 #include "broadphase.pb.h"
 #include "config.h"
+
+#include "bp/workload.h"
 
 namespace bp::bpctl {
 
@@ -30,20 +31,20 @@ struct Common {
 
 struct SceneOptions {
   workload::SceneParams params;
-  double rate_hz = 60.0;     ///< frames per second; 0 = as fast as possible
-  uint64_t frames = 0;       ///< frames after the initial one; 0 = until stopped
+  double rate_hz = 60.0;  ///< frames per second; 0 = as fast as possible
+  uint64_t frames = 0;    ///< frames after the initial one; 0 = until stopped
   uint32_t producer = 1;
   uint64_t max_items = 100'000;  ///< items per batch (a frame larger than this is split)
-  uint32_t readers = 1;      ///< readers to wait for before the first frame (daemon + recorders)
+  uint32_t readers = 1;  ///< readers to wait for before the first frame (daemon + recorders)
   bool quiet = false;
 };
 int Scene(const Common& common, const SceneOptions& options);
 
 struct WatchOptions {
-  bool stats = false;       ///< print rates and latency each second instead of events
-  uint64_t frames = 0;      ///< stop after this many frames (0 = until stopped)
-  double seconds = 0;       ///< stop after this long (0 = until stopped)
-  int32_t depth = 256;      ///< subscriber history
+  bool stats = false;   ///< print rates and latency each second instead of events
+  uint64_t frames = 0;  ///< stop after this many frames (0 = until stopped)
+  double seconds = 0;   ///< stop after this long (0 = until stopped)
+  int32_t depth = 256;  ///< subscriber history
 };
 int Watch(const Common& common, const WatchOptions& options);
 
@@ -55,23 +56,23 @@ int ShowStatus(const Common& common, const StatusOptions& options);
 
 struct RecordOptions {
   std::string file;
-  double seconds = 0;       ///< stop after this long (0 = until stopped)
-  uint64_t batches = 0;     ///< stop after this many batches (0 = until stopped)
+  double seconds = 0;    ///< stop after this long (0 = until stopped)
+  uint64_t batches = 0;  ///< stop after this many batches (0 = until stopped)
   std::string note;
 };
 int Record(const Common& common, const RecordOptions& options);
 
 struct ReplayOptions {
   std::string file;
-  double speed = 1.0;       ///< 2 = twice the recorded pace
-  bool fast = false;        ///< as fast as possible (back-pressure still applies)
+  double speed = 1.0;  ///< 2 = twice the recorded pace
+  bool fast = false;   ///< as fast as possible (back-pressure still applies)
   bool progress = true;
 };
 int Replay(const Common& common, const ReplayOptions& options);
 
 struct CheckOptions {
   std::string file;
-  std::string engine;       ///< "" = the config's engine.algorithm
+  std::string engine;  ///< "" = the config's engine.algorithm
   bool quiet = false;
 };
 /// The result of a check, for tests.

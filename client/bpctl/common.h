@@ -6,8 +6,9 @@
 #include <memory>
 #include <string>
 
-#include "bp/client/connection.h"
 #include "commands.h"
+
+#include "bp/client/connection.h"
 
 namespace bp::bpctl {
 

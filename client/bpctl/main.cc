@@ -1,14 +1,14 @@
 // bpctl: the broadphase command line. `bpctl --help`; every command takes the daemon's YAML
 // (--config) to know the deployment: domain, partition, topics, Cyclone XML, engine, limits.
 // Exit status: 0 ok, 1 failure (no daemon, I/O, a difference found by check), 2 bad arguments.
-#include <signal.h>
-
-#include <CLI/CLI.hpp>
 #include <cstdio>
 #include <filesystem>
 
-#include "bp/workload_scenarios.h"
 #include "commands.h"
+#include <CLI/CLI.hpp>
+#include <signal.h>
+
+#include "bp/workload_scenarios.h"
 
 namespace {
 
@@ -17,8 +17,9 @@ void OnSignal(int) { bp::bpctl::RequestStop(); }
 }  // namespace
 
 int main(int argc, char** argv) {
-  CLI::App app{"bpctl: publish scenes, watch events, record, replay and check update streams of "
-               "broadphased"};
+  CLI::App app{
+      "bpctl: publish scenes, watch events, record, replay and check update streams of "
+      "broadphased"};
   app.require_subcommand(1);
   std::string config_path;
   double wait_s = 10.0;
@@ -30,7 +31,8 @@ int main(int argc, char** argv) {
   bp::bpctl::SceneOptions scene;
   std::string scenario;
   auto* scene_cmd = app.add_subcommand("scene", "publish the WORKLOADS.md scene at a rate");
-  scene_cmd->add_option("--scenario", scenario, "a named row: S1-10k, S2a, ... (sets n/moving/churn/dim)");
+  scene_cmd->add_option("--scenario", scenario,
+                        "a named row: S1-10k, S2a, ... (sets n/moving/churn/dim)");
   scene_cmd->add_option("-n,--objects", scene.params.n, "live objects")->check(CLI::PositiveNumber);
   scene_cmd->add_option("--moving", scene.params.moving, "moving objects per frame");
   scene_cmd->add_option("--churn", scene.params.churn, "removals (= insertions) per frame");
@@ -40,8 +42,9 @@ int main(int argc, char** argv) {
       ->check(CLI::NonNegativeNumber);
   scene_cmd->add_option("--frames", scene.frames, "frames after the first (0 = until Ctrl-C)");
   scene_cmd->add_option("--producer", scene.producer, "producer id")->check(CLI::Range(1, 65535));
-  scene_cmd->add_option("--readers", scene.readers,
-                        "update readers to wait for (2 = the daemon and a recorder)")
+  scene_cmd
+      ->add_option("--readers", scene.readers,
+                   "update readers to wait for (2 = the daemon and a recorder)")
       ->check(CLI::PositiveNumber);
   scene_cmd->add_flag("-q,--quiet", scene.quiet, "no progress lines");
 
@@ -69,7 +72,8 @@ int main(int argc, char** argv) {
   replay_cmd->add_option("--speed", replay.speed, "pace factor (2 = twice as fast)")
       ->check(CLI::PositiveNumber);
   replay_cmd->add_flag("--fast", replay.fast, "as fast as the daemon takes it");
-  replay_cmd->add_flag("--no-progress", [&](int64_t) { replay.progress = false; }, "no progress bar");
+  replay_cmd->add_flag(
+      "--no-progress", [&](int64_t) { replay.progress = false; }, "no progress bar");
 
   bp::bpctl::CheckOptions check;
   auto* check_cmd = app.add_subcommand(

@@ -1,9 +1,10 @@
 // bpctl record (the update stream to a file) and bpctl replay (a file back onto the topic).
 #include <thread>
 
+#include "common.h"
+
 #include "bp/client/update_publisher.h"
 #include "bp/wire/recording.h"
-#include "common.h"
 
 namespace bp::bpctl {
 
@@ -16,14 +17,14 @@ int Record(const Common& common, const RecordOptions& options) {
   client::qos::UpdatesReader(qos.get(), common.config.dds.update_queue);
   dds::Reader reader;
   dds::WaitSet waitset;
-  if (Status s = dds::Reader::Create(connection->participant(), connection->updates_topic(), qos,
-                                     &reader);
+  if (Status s =
+          dds::Reader::Create(connection->participant(), connection->updates_topic(), qos, &reader);
       !s.ok()) {
     std::fprintf(stderr, "bpctl record: %s\n", s.ToString().c_str());
     return 1;
   }
-  if (Status s = dds::WaitSet::Create(connection->participant(), &waitset); !s.ok() ||
-                                                                            !waitset.Attach(reader).ok()) {
+  if (Status s = dds::WaitSet::Create(connection->participant(), &waitset);
+      !s.ok() || !waitset.Attach(reader).ok()) {
     std::fprintf(stderr, "bpctl record: cannot create a waitset\n");
     return 1;
   }
@@ -55,9 +56,9 @@ int Record(const Common& common, const RecordOptions& options) {
         [&](const dds::Received& r) {
           if (!failure.ok()) return;
           if (options.batches > 0 && writer.batches() >= options.batches) return;
-          failure = writer.Append(client::WallClockNs(),
-                                  std::string_view(reinterpret_cast<const char*>(r.payload.data()),
-                                                   r.payload.size()));
+          failure = writer.Append(
+              client::WallClockNs(),
+              std::string_view(reinterpret_cast<const char*>(r.payload.data()), r.payload.size()));
         },
         &taken);
     if (!s.ok()) failure = s;
@@ -126,9 +127,9 @@ int Replay(const Common& common, const ReplayOptions& options) {
     if (!options.fast) {
       const double offset_s =
           static_cast<double>(b.time_ns() >= t0 ? b.time_ns() - t0 : 0) / 1e9 / options.speed;
-      std::this_thread::sleep_until(
-          start + std::chrono::duration_cast<std::chrono::steady_clock::duration>(
-                      std::chrono::duration<double>(offset_s)));
+      std::this_thread::sleep_until(start +
+                                    std::chrono::duration_cast<std::chrono::steady_clock::duration>(
+                                        std::chrono::duration<double>(offset_s)));
     }
     for (;;) {
       Status s = pub->PublishRaw(b.payload());

@@ -1,9 +1,10 @@
 // bpctl scene: publishes the WORKLOADS.md scene at a rate.
 #include <thread>
 
+#include "common.h"
+
 #include "bp/client/batch_builder.h"
 #include "bp/client/update_publisher.h"
-#include "common.h"
 
 namespace bp::bpctl {
 namespace {
@@ -119,7 +120,8 @@ int Scene(const Common& common, const SceneOptions& options) {
   (void)pub->Flush(std::chrono::seconds(5));
   if (!options.quiet) {
     const double seconds = SecondsSince(start);
-    std::fprintf(stderr, "bpctl scene: published %llu frames in %.2f s (%.1f frames/s), %llu late\n",
+    std::fprintf(stderr,
+                 "bpctl scene: published %llu frames in %.2f s (%.1f frames/s), %llu late\n",
                  static_cast<unsigned long long>(frame), seconds,
                  static_cast<double>(frame) / std::max(seconds, 1e-9),
                  static_cast<unsigned long long>(late));

@@ -2,9 +2,10 @@
 #include <algorithm>
 #include <vector>
 
+#include "common.h"
+
 #include "bp/client/subscriber.h"
 #include "bp/client/update_publisher.h"
-#include "common.h"
 
 namespace bp::bpctl {
 namespace {
@@ -129,22 +130,24 @@ int ShowStatus(const Common& common, const StatusOptions& options) {
     for (size_t k = first; k < reports.size(); ++k) {
       const wire::DaemonStatus& r = reports[k];
       any = true;
-      std::printf("%s: %s, engine %s %u-D %s, frame %llu, objects %llu, overlaps %llu, "
-                  "producers %u, rejected %llu, event write failures %llu\n",
-                  r.daemon().c_str(), HealthName(r.health()), r.engine().c_str(), r.dim(),
-                  r.coordinate().c_str(), static_cast<unsigned long long>(r.frame()),
-                  static_cast<unsigned long long>(r.objects()),
-                  static_cast<unsigned long long>(r.overlaps()), r.producers(),
-                  static_cast<unsigned long long>(r.rejected_total()),
-                  static_cast<unsigned long long>(r.event_write_failures()));
+      std::printf(
+          "%s: %s, engine %s %u-D %s, frame %llu, objects %llu, overlaps %llu, "
+          "producers %u, rejected %llu, event write failures %llu\n",
+          r.daemon().c_str(), HealthName(r.health()), r.engine().c_str(), r.dim(),
+          r.coordinate().c_str(), static_cast<unsigned long long>(r.frame()),
+          static_cast<unsigned long long>(r.objects()),
+          static_cast<unsigned long long>(r.overlaps()), r.producers(),
+          static_cast<unsigned long long>(r.rejected_total()),
+          static_cast<unsigned long long>(r.event_write_failures()));
       if (r.has_interval() && r.interval().seconds() > 0) {
         const auto& i = r.interval();
-        std::printf("  last %.1f s: %.1f frames/s, %.0f updates/s, %.0f events/s, frame p50 %.3f "
-                    "ms p99 %.3f ms max %.3f ms\n",
-                    i.seconds(), static_cast<double>(i.frames()) / i.seconds(),
-                    static_cast<double>(i.updates()) / i.seconds(),
-                    static_cast<double>(i.events()) / i.seconds(), i.frame_ms_p50(),
-                    i.frame_ms_p99(), i.frame_ms_max());
+        std::printf(
+            "  last %.1f s: %.1f frames/s, %.0f updates/s, %.0f events/s, frame p50 %.3f "
+            "ms p99 %.3f ms max %.3f ms\n",
+            i.seconds(), static_cast<double>(i.frames()) / i.seconds(),
+            static_cast<double>(i.updates()) / i.seconds(),
+            static_cast<double>(i.events()) / i.seconds(), i.frame_ms_p50(), i.frame_ms_p99(),
+            i.frame_ms_max());
       }
       for (const auto& j : r.rejections()) {
         std::printf("  rejected (producer %u, frame %llu): %s\n", j.producer(),

@@ -5,8 +5,9 @@
 #include <thread>
 
 #include "../service/service_test_support.h"
-#include "bp/wire/recording.h"
 #include "commands.h"
+
+#include "bp/wire/recording.h"
 
 namespace bp::test {
 namespace {

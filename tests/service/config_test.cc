@@ -115,7 +115,7 @@ TEST(ConfigDefaults, MatchTheDocumentedValues) {
   EXPECT_EQ(c.dds.topics.status, "bp_status");
   EXPECT_EQ(c.dds.write_timeout_ms, 100);
   EXPECT_EQ(c.dds.event_history, 64);
-  EXPECT_EQ(c.dds.update_queue, 256);
+  EXPECT_EQ(c.dds.update_queue, 32);
   EXPECT_EQ(c.frames.boundary, FrameBoundary::kEndOfFrame);
   EXPECT_EQ(c.frames.tick_ms, 16.667);
   EXPECT_EQ(c.limits.max_batch_bytes, 64ull << 20);
