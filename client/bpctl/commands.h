@@ -45,6 +45,8 @@ struct WatchOptions {
   uint64_t frames = 0;  ///< stop after this many frames (0 = until stopped)
   double seconds = 0;   ///< stop after this long (0 = until stopped)
   int32_t depth = 256;  ///< subscriber history
+  double warmup_s = 0;  ///< leave the first seconds out of the final totals
+  bool json = false;    ///< with stats: JSON lines (per second, and the totals at the end)
 };
 int Watch(const Common& common, const WatchOptions& options);
 

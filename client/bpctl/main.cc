@@ -53,6 +53,8 @@ int main(int argc, char** argv) {
   watch_cmd->add_flag("--stats", watch.stats, "one line per second: rates, update->event latency");
   watch_cmd->add_option("--frames", watch.frames, "stop after this many frames");
   watch_cmd->add_option("--seconds", watch.seconds, "stop after this many seconds");
+  watch_cmd->add_option("--warmup", watch.warmup_s, "seconds left out of the final totals");
+  watch_cmd->add_flag("--json", watch.json, "with --stats: JSON lines");
 
   bp::bpctl::StatusOptions status;
   auto* status_cmd = app.add_subcommand("status", "show the daemon's health and statistics");

@@ -52,6 +52,10 @@ int Watch(const Common& common, const WatchOptions& options) {
   uint64_t frames = 0, window_frames = 0, window_collides = 0, window_uncollides = 0;
   uint64_t objects = 0, overlaps = 0;
   std::vector<double> latency_ms;
+  // Totals after the warm-up: frames, the span they arrived in, every latency.
+  std::vector<double> all_latency_ms;
+  uint64_t total_frames = 0, total_events = 0;
+  std::chrono::steady_clock::time_point first_frame{}, last_frame{};
   std::vector<wire::EventBatch> batches;
   while (!StopRequested()) {
     if (options.seconds > 0 && SecondsSince(start) >= options.seconds) break;
@@ -75,13 +79,24 @@ int Watch(const Common& common, const WatchOptions& options) {
       }
       window_collides += static_cast<uint64_t>(b.collide_size()) / 2;
       window_uncollides += static_cast<uint64_t>(b.uncollide_size()) / 2;
+      const bool counted = SecondsSince(start) >= options.warmup_s;
+      if (counted) total_events += static_cast<uint64_t>(b.collide_size() + b.uncollide_size()) / 2;
       if (!b.last_part()) continue;
       ++frames;
       ++window_frames;
       objects = b.objects();
       overlaps = b.overlaps();
+      double latency = -1;
       if (b.source_sent_time_ns() != 0 && now_ns >= b.source_sent_time_ns()) {
-        latency_ms.push_back(static_cast<double>(now_ns - b.source_sent_time_ns()) / 1e6);
+        latency = static_cast<double>(now_ns - b.source_sent_time_ns()) / 1e6;
+        latency_ms.push_back(latency);
+      }
+      if (counted) {
+        const auto now = std::chrono::steady_clock::now();
+        if (total_frames == 0) first_frame = now;
+        last_frame = now;
+        ++total_frames;
+        if (latency >= 0) all_latency_ms.push_back(latency);
       }
     }
     if (!options.stats) {
@@ -89,7 +104,20 @@ int Watch(const Common& common, const WatchOptions& options) {
       continue;
     }
     const double window = SecondsSince(window_start);
-    if (window >= 1.0) {
+    if (window >= 1.0 && options.json) {
+      std::printf(
+          "{\"objects\": %llu, \"overlaps\": %llu, \"frames_per_s\": %.2f, \"events_per_s\": "
+          "%.1f, \"latency_ms_p50\": %.3f, \"latency_ms_p99\": %.3f, \"gaps\": %llu}\n",
+          static_cast<unsigned long long>(objects), static_cast<unsigned long long>(overlaps),
+          static_cast<double>(window_frames) / window,
+          static_cast<double>(window_collides + window_uncollides) / window,
+          Percentile(latency_ms, 0.5), Percentile(latency_ms, 0.99),
+          static_cast<unsigned long long>(sub->gaps()));
+      std::fflush(stdout);
+      window_start = std::chrono::steady_clock::now();
+      window_frames = window_collides = window_uncollides = 0;
+      latency_ms.clear();
+    } else if (window >= 1.0) {
       std::printf(
           "objects %llu | overlaps %llu | %.1f frames/s | %.0f collides/s | %.0f uncollides/s | "
           "update->event p50 %.2f ms p99 %.2f ms | gaps %llu\n",
@@ -103,6 +131,31 @@ int Watch(const Common& common, const WatchOptions& options) {
       window_frames = window_collides = window_uncollides = 0;
       latency_ms.clear();
     }
+  }
+  if (options.stats) {
+    // Sustained rate: frames after the first counted one over the time they took to arrive.
+    const double span = std::chrono::duration<double>(last_frame - first_frame).count();
+    const double rate = total_frames > 1 && span > 0
+                            ? static_cast<double>(total_frames - 1) / span
+                            : 0.0;
+    std::vector<double> sorted = all_latency_ms;
+    const double p50 = Percentile(sorted, 0.5), p99 = Percentile(sorted, 0.99);
+    const double max = sorted.empty() ? 0 : *std::max_element(sorted.begin(), sorted.end());
+    if (options.json) {
+      std::printf("{\"total\": true, \"frames\": %llu, \"seconds\": %.3f, \"frames_per_s\": "
+                  "%.2f, \"events\": %llu, \"latency_ms_p50\": %.3f, \"latency_ms_p99\": %.3f, "
+                  "\"latency_ms_max\": %.3f, \"gaps\": %llu}\n",
+                  static_cast<unsigned long long>(total_frames), span, rate,
+                  static_cast<unsigned long long>(total_events), p50, p99, max,
+                  static_cast<unsigned long long>(sub->gaps()));
+    } else {
+      std::printf("total after %.0f s warm-up: %llu frames in %.2f s (%.1f frames/s), %llu "
+                  "events, update->event p50 %.2f ms p99 %.2f ms max %.2f ms, gaps %llu\n",
+                  options.warmup_s, static_cast<unsigned long long>(total_frames), span, rate,
+                  static_cast<unsigned long long>(total_events), p50, p99, max,
+                  static_cast<unsigned long long>(sub->gaps()));
+    }
+    std::fflush(stdout);
   }
   return 0;
 }

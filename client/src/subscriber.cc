@@ -56,6 +56,29 @@ Status Subscriber<Msg>::Poll(std::chrono::milliseconds timeout, std::vector<Msg>
   }
 }
 
+template <class Msg>
+Status Subscriber<Msg>::Listen(std::function<void(const Msg&)> f) {
+  if (listening_.exchange(true)) {
+    return Status(StatusCode::kInvalidArgument, "already listening");
+  }
+  listener_ = std::thread([this, f = std::move(f)] {
+    std::vector<Msg> messages;
+    while (listening_.load()) {
+      messages.clear();
+      if (!Poll(std::chrono::milliseconds(100), &messages).ok()) return;
+      for (const Msg& m : messages) f(m);
+    }
+  });
+  return Status::Ok();
+}
+
+template <class Msg>
+void Subscriber<Msg>::StopListening() {
+  if (!listening_.exchange(false)) return;
+  waitset_.Wake();
+  if (listener_.joinable()) listener_.join();
+}
+
 template class Subscriber<wire::EventBatch>;
 template class Subscriber<wire::DaemonStatus>;
 

@@ -3,6 +3,8 @@
 // producers, tick frames, event parts, clean shutdown.
 #include <atomic>
 #include <cmath>
+#include <condition_variable>
+#include <mutex>
 #include <limits>
 
 #include "service_test_support.h"
@@ -580,6 +582,46 @@ TEST(Daemon, ASubscriberThatNeverReadsStallsNothing) {
   }
   BP_ASSERT_OK(daemon.Stop());
   EXPECT_EQ(daemon.daemon().frames(), kFrames);
+}
+
+}  // namespace
+}  // namespace bp::test
+
+namespace bp::test {
+namespace {
+
+// The client library's callback style: a listener thread hands every EventBatch to a callback.
+TEST(Daemon, ClientLibraryRoundTripWithACallback) {
+  service::Config config = TestConfig(kDomain);
+  InProcessDaemon daemon(config);
+  std::unique_ptr<client::Connection> connection;
+  BP_ASSERT_OK(client::Connection::Open(ClientOptions(config), &connection));
+  std::unique_ptr<client::EventSubscriber> sub;
+  BP_ASSERT_OK(client::EventSubscriber::Create(*connection, 64, &sub));
+  BP_ASSERT_OK(sub->WaitForDaemon(10s));
+  std::mutex mutex;
+  std::condition_variable arrived;
+  std::vector<wire::EventBatch> received;
+  BP_ASSERT_OK(sub->Listen([&](const wire::EventBatch& b) {
+    std::lock_guard lock(mutex);
+    received.push_back(b);
+    arrived.notify_all();
+  }));
+  EXPECT_FALSE(sub->Listen([](const wire::EventBatch&) {}).ok()) << "a second listener";
+  std::unique_ptr<client::UpdatePublisher> pub;
+  BP_ASSERT_OK(client::UpdatePublisher::Create(*connection, 2, 1000ms, &pub));
+  BP_ASSERT_OK(pub->WaitForDaemon(10s));
+  wire::UpdateBatch batch = InsertBatch({{1, Cube(0)}, {2, Cube(0.5f)}});
+  BP_ASSERT_OK(pub->Publish(&batch));
+  {
+    std::unique_lock lock(mutex);
+    ASSERT_TRUE(arrived.wait_for(lock, 10s, [&] { return !received.empty(); }));
+    EXPECT_EQ(client::Pairs(received[0].collide()),
+              (PairList{{service::GlobalKey(2, 1), service::GlobalKey(2, 2)}}));
+    EXPECT_EQ(received[0].source_producer(), 2u);
+  }
+  sub->StopListening();
+  sub->StopListening();  // idempotent
 }
 
 }  // namespace

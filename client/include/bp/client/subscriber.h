@@ -5,12 +5,15 @@
 // the envelope sequence (a slow subscriber's KEEP_LAST history overwrote batches) are counted
 // in gaps() so the application can tell that it missed events.
 //
-// Thread safety: one thread at a time per subscriber.
+// Thread safety: one thread at a time per subscriber (Listen's thread counts as that thread).
 #pragma once
 
+#include <atomic>
 #include <chrono>
 #include <cstdint>
+#include <functional>
 #include <memory>
+#include <thread>
 #include <vector>
 
 #include "broadphase.pb.h"
@@ -32,6 +35,12 @@ class Subscriber {
   }
   /// Appends the messages available within timeout (possibly none) to out.
   Status Poll(std::chrono::milliseconds timeout, std::vector<Msg>* out);
+  /// Calls f for each message on a thread of its own, until StopListening() or destruction
+  /// (the callback style; do not Poll while listening). f must not throw.
+  Status Listen(std::function<void(const Msg&)> f);
+  /// Stops the listening thread and waits for it (idempotent).
+  void StopListening();
+  ~Subscriber() { StopListening(); }
   /// Payloads that did not parse.
   uint64_t malformed() const { return malformed_; }
   /// Envelopes missing between consecutive received sequence numbers.
@@ -41,6 +50,8 @@ class Subscriber {
   Subscriber() = default;
   dds::Reader reader_;
   dds::WaitSet waitset_;
+  std::thread listener_;
+  std::atomic<bool> listening_{false};
   uint64_t last_seq_ = 0;
   uint64_t malformed_ = 0;
   uint64_t gaps_ = 0;
