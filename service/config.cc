@@ -3,6 +3,7 @@
 #include <algorithm>
 #include <cerrno>
 #include <cstdio>
+#include <cstdlib>
 #include <exception>
 #include <filesystem>
 #include <memory>
@@ -397,6 +398,41 @@ std::string ConfigToYaml(const Config& c) {
   line(k1, "summary_interval_s", FormatNumber(c.logging.summary_interval_s));
   line(k1, "file", YamlString(c.logging.file));
   return y;
+}
+
+}  // namespace bp::service
+
+namespace bp::service {
+
+std::string FindDefaultConfig() {
+  namespace fs = std::filesystem;
+  if (const char* env = std::getenv("BP_CONFIG"); env != nullptr && *env != '\0') return env;
+  std::error_code ignored;  // a missing candidate is not an error
+  if (fs::is_regular_file("config/broadphased.yaml", ignored)) return "config/broadphased.yaml";
+  std::error_code ec;
+  fs::path dir = fs::read_symlink("/proc/self/exe", ec).parent_path();
+  if (ec) return "";
+  for (int up = 0; up < 5 && !dir.empty(); ++up) {
+    for (const char* candidate :
+         {"config/broadphased.yaml", "share/broadphase/config/broadphased.yaml"}) {
+      if (fs::is_regular_file(dir / candidate, ignored)) return (dir / candidate).string();
+    }
+    if (dir == dir.parent_path()) break;
+    dir = dir.parent_path();
+  }
+  return "";
+}
+
+Status LoadConfigOrDefault(const std::string& path, Config* out) {
+  const std::string chosen = path.empty() ? FindDefaultConfig() : path;
+  if (!chosen.empty()) return LoadConfigFile(chosen, out);
+  Status s = ParseConfig("", "<built-in defaults>", out);
+  if (!s.ok()) return s;
+  out->dds.cyclone_config.clear();
+  out->warnings.push_back(
+      "no configuration file found (--config, $BP_CONFIG, config/broadphased.yaml): built-in "
+      "defaults with Cyclone's default network configuration");
+  return Status::Ok();
 }
 
 }  // namespace bp::service

@@ -143,6 +143,16 @@ Status LoadConfigFile(const std::string& path, Config* out);
 /// and `--print-config`. ParseConfig reads it back to an equal configuration.
 std::string ConfigToYaml(const Config& config);
 
+/// The configuration to use when none is given on the command line: $BP_CONFIG if set, else
+/// config/broadphased.yaml in the working directory, else the one next to the executable (the
+/// source tree's config/ above a build directory, or an installation's
+/// share/broadphase/config/). "" when there is none.
+std::string FindDefaultConfig();
+
+/// Loads path, or when path is "" the default of FindDefaultConfig(), or else the built-in
+/// defaults with Cyclone's own default configuration (a warning says so).
+Status LoadConfigOrDefault(const std::string& path, Config* out);
+
 /// Canonical names: "float"/"double"/"int32".
 std::string_view CoordinateTypeName(CoordinateType type);
 /// Canonical names: "end_of_frame"/"tick".

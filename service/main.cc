@@ -1,7 +1,9 @@
 // broadphased: the proximity daemon. `broadphased --config config/broadphased.yaml`.
-// Exit status: 0 after a clean stop (SIGINT/SIGTERM; a second signal exits at once with 1),
+// Exit status: 0 after a clean stop (SIGINT/SIGTERM; a second one a second or more later exits
+// at once with 1),
 // 1 on a runtime failure, 2 on a bad command line or configuration.
 #include <atomic>
+#include <chrono>
 #include <cstdio>
 #include <cstdlib>
 #include <iostream>
@@ -46,7 +48,9 @@ int main(int argc, char** argv) {
   std::string config_path;
   bool print_config = false;
   bool check_config = false;
-  app.add_option("-c,--config", config_path, "YAML configuration (default: built-in defaults)")
+  app.add_option("-c,--config", config_path,
+                 "YAML configuration (default: $BP_CONFIG, else config/broadphased.yaml here or "
+                 "next to the binary)")
       ->check(CLI::ExistingFile);
   app.add_flag("--print-config", print_config, "print the effective configuration and exit");
   app.add_flag("--check-config", check_config, "validate the configuration and exit");
@@ -57,8 +61,7 @@ int main(int argc, char** argv) {
   }
 
   bp::service::Config config;
-  bp::Status loaded = config_path.empty() ? bp::service::ParseConfig("", "<defaults>", &config)
-                                          : bp::service::LoadConfigFile(config_path, &config);
+  bp::Status loaded = bp::service::LoadConfigOrDefault(config_path, &config);
   if (!loaded.ok()) {
     std::fprintf(stderr, "broadphased: configuration refused:\n%s\n", loaded.message().c_str());
     return 2;
@@ -93,6 +96,7 @@ int main(int argc, char** argv) {
   std::thread signal_thread([&] {
     const timespec poll{0, 200'000'000};
     bool stopping = false;
+    std::chrono::steady_clock::time_point first{};
     while (!done.load()) {
       const int sig = sigtimedwait(&stop_signals, nullptr, &poll);
       if (sig != SIGINT && sig != SIGTERM) continue;
@@ -100,7 +104,13 @@ int main(int argc, char** argv) {
       if (!stopping) {
         spdlog::info("received {}; finishing the frame (send it again to exit at once)", name);
         stopping = true;
+        first = std::chrono::steady_clock::now();
         daemon->RequestStop();
+      } else if (done.load() ||
+                 std::chrono::steady_clock::now() - first < std::chrono::seconds(1)) {
+        // A terminal's Ctrl-C reaches the whole process group, and a supervisor may forward
+        // it once more at the same moment: only a deliberate second signal forces the exit.
+        spdlog::info("received {} again within a second: still finishing the frame", name);
       } else {
         spdlog::warn("received {} again: exiting without finishing the frame", name);
         spdlog::shutdown();

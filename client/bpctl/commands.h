@@ -68,6 +68,7 @@ struct ReplayOptions {
   std::string file;
   double speed = 1.0;  ///< 2 = twice the recorded pace
   bool fast = false;   ///< as fast as possible (back-pressure still applies)
+  bool raw = false;    ///< publish payloads byte for byte (no restamped send time)
   bool progress = true;
 };
 int Replay(const Common& common, const ReplayOptions& options);

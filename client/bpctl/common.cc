@@ -32,6 +32,20 @@ std::unique_ptr<client::Connection> Connect(const Common& common) {
   return connection;
 }
 
+Status WaitInterruptibly(double timeout_s,
+                         const std::function<Status(std::chrono::milliseconds)>& wait) {
+  const auto start = std::chrono::steady_clock::now();
+  for (;;) {
+    Status s = wait(std::chrono::milliseconds(100));
+    if (s.ok() || s.code() != StatusCode::kDeadlineExceeded) return s;
+    if (StopRequested()) return Status(StatusCode::kDeadlineExceeded, "interrupted");
+    if (SecondsSince(start) >= timeout_s) {
+      return Status(StatusCode::kDeadlineExceeded,
+                    "nothing matched within " + std::to_string(timeout_s) + " s");
+    }
+  }
+}
+
 std::string KeyName(uint64_t key) {
   return std::to_string(key >> 48) + ":" + std::to_string(key & ((uint64_t{1} << 48) - 1));
 }

@@ -3,6 +3,7 @@
 
 #include <chrono>
 #include <cstdio>
+#include <functional>
 #include <memory>
 #include <string>
 
@@ -19,6 +20,11 @@ std::unique_ptr<client::Connection> Connect(const Common& common);
 inline double SecondsSince(std::chrono::steady_clock::time_point t) {
   return std::chrono::duration<double>(std::chrono::steady_clock::now() - t).count();
 }
+
+/// Calls wait(100 ms) until it succeeds, the total timeout passes or a stop is requested (so
+/// that Ctrl-C is not held up by discovery). The last status.
+Status WaitInterruptibly(double timeout_s,
+                         const std::function<Status(std::chrono::milliseconds)>& wait);
 
 /// "producer:id" of a global key.
 std::string KeyName(uint64_t key);

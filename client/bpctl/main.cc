@@ -23,9 +23,10 @@ int main(int argc, char** argv) {
   app.require_subcommand(1);
   std::string config_path;
   double wait_s = 10.0;
-  app.add_option("-c,--config", config_path,
-                 "the daemon's YAML (default: config/broadphased.yaml if it exists, else "
-                 "built-in defaults)");
+  app.add_option(
+      "-c,--config", config_path,
+      "the daemon's YAML (default: $BP_CONFIG, else config/broadphased.yaml here or next to "
+      "the binary)");
   app.add_option("--wait", wait_s, "seconds to wait for the daemon")->check(CLI::PositiveNumber);
 
   bp::bpctl::SceneOptions scene;
@@ -74,6 +75,8 @@ int main(int argc, char** argv) {
   replay_cmd->add_option("--speed", replay.speed, "pace factor (2 = twice as fast)")
       ->check(CLI::PositiveNumber);
   replay_cmd->add_flag("--fast", replay.fast, "as fast as the daemon takes it");
+  replay_cmd->add_flag("--raw", replay.raw,
+                       "payloads byte for byte (default: send times restamped for latency)");
   replay_cmd->add_flag(
       "--no-progress", [&](int64_t) { replay.progress = false; }, "no progress bar");
 
@@ -90,16 +93,13 @@ int main(int argc, char** argv) {
   }
 
   bp::bpctl::Common common;
-  if (config_path.empty() && std::filesystem::exists("config/broadphased.yaml")) {
-    config_path = "config/broadphased.yaml";
-  }
-  bp::Status loaded = config_path.empty()
-                          ? bp::service::ParseConfig("", "<defaults>", &common.config)
-                          : bp::service::LoadConfigFile(config_path, &common.config);
+  bp::Status loaded = bp::service::LoadConfigOrDefault(config_path, &common.config);
   if (!loaded.ok()) {
     std::fprintf(stderr, "bpctl: configuration refused:\n%s\n", loaded.message().c_str());
     return 2;
   }
+  for (const auto& w : common.config.warnings)
+    std::fprintf(stderr, "bpctl: warning: %s\n", w.c_str());
   common.wait_s = wait_s;
   struct sigaction action {};
   action.sa_handler = OnSignal;

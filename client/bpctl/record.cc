@@ -1,4 +1,5 @@
 // bpctl record (the update stream to a file) and bpctl replay (a file back onto the topic).
+#include <algorithm>
 #include <thread>
 
 #include "common.h"
@@ -70,6 +71,22 @@ int Record(const Common& common, const RecordOptions& options) {
       (void)writer.Flush();
     }
   }
+  // Batches already delivered to this reader (and acknowledged to their producers) belong to
+  // the recording: take what is left before closing.
+  for (size_t taken = 1; taken > 0 && failure.ok();) {
+    if (options.batches > 0 && writer.batches() >= options.batches) break;
+    Status s = reader.Take(
+        64,
+        [&](const dds::Received& r) {
+          if (!failure.ok()) return;
+          if (options.batches > 0 && writer.batches() >= options.batches) return;
+          failure = writer.Append(
+              client::WallClockNs(),
+              std::string_view(reinterpret_cast<const char*>(r.payload.data()), r.payload.size()));
+        },
+        &taken);
+    if (!s.ok()) failure = s;
+  }
   Status closed = writer.Close();
   if (!failure.ok() || !closed.ok()) {
     std::fprintf(stderr, "bpctl record: %s\n",
@@ -97,8 +114,14 @@ int Replay(const Common& common, const ReplayOptions& options) {
     wire::RecordedBatch b;
     bool end = false;
     if (Status s = reader.Next(&b, &end); !s.ok()) {
-      std::fprintf(stderr, "bpctl replay: %s\n", s.ToString().c_str());
-      return 1;
+      if (s.code() != StatusCode::kDataLoss || batches.empty()) {
+        std::fprintf(stderr, "bpctl replay: %s\n", s.ToString().c_str());
+        return 1;
+      }
+      // A recorder killed mid-write leaves a partial last batch: replay the complete ones.
+      std::fprintf(stderr, "bpctl replay: warning: %s; replaying the %zu complete batches\n",
+                   s.message().c_str(), batches.size());
+      break;
     }
     if (end) break;
     batches.push_back(std::move(b));
@@ -113,8 +136,9 @@ int Replay(const Common& common, const ReplayOptions& options) {
     std::fprintf(stderr, "bpctl replay: %s\n", s.ToString().c_str());
     return 1;
   }
-  const auto wait = std::chrono::milliseconds(static_cast<int64_t>(common.wait_s * 1000));
-  if (Status s = pub->WaitForDaemon(wait); !s.ok()) {
+  if (Status s = WaitInterruptibly(
+          common.wait_s, [&](std::chrono::milliseconds t) { return pub->WaitForDaemon(t); });
+      !s.ok()) {
     std::fprintf(stderr, "bpctl replay: no daemon listening (%s)\n", s.ToString().c_str());
     return 1;
   }
@@ -122,17 +146,32 @@ int Replay(const Common& common, const ReplayOptions& options) {
   const uint64_t t0 = batches.empty() ? 0 : batches.front().time_ns();
   uint64_t retries = 0;
   int last_percent = -1;
+  wire::UpdateBatch restamp;
+  std::string restamped;
   for (size_t i = 0; i < batches.size() && !StopRequested(); ++i) {
     const auto& b = batches[i];
     if (!options.fast) {
       const double offset_s =
           static_cast<double>(b.time_ns() >= t0 ? b.time_ns() - t0 : 0) / 1e9 / options.speed;
-      std::this_thread::sleep_until(start +
-                                    std::chrono::duration_cast<std::chrono::steady_clock::duration>(
-                                        std::chrono::duration<double>(offset_s)));
+      const auto due = start + std::chrono::duration_cast<std::chrono::steady_clock::duration>(
+                                   std::chrono::duration<double>(offset_s));
+      // In slices, so that Ctrl-C is not held up by a pause in the recording.
+      while (!StopRequested() && std::chrono::steady_clock::now() < due) {
+        std::this_thread::sleep_until(
+            std::min(due, std::chrono::steady_clock::now() + std::chrono::milliseconds(50)));
+      }
+      if (StopRequested()) break;
+    }
+    // The batch's send time is restamped (unless --raw), so that latency measured downstream is
+    // the replay's, not the recording's age; a payload that does not parse goes out as it is.
+    const std::string* payload = &b.payload();
+    if (!options.raw && restamp.ParseFromString(b.payload()) && restamp.sent_time_ns() != 0) {
+      restamp.set_sent_time_ns(client::WallClockNs());
+      restamped.clear();
+      if (restamp.SerializeToString(&restamped)) payload = &restamped;
     }
     for (;;) {
-      Status s = pub->PublishRaw(b.payload());
+      Status s = pub->PublishRaw(*payload);
       if (s.ok()) break;
       if (s.code() != StatusCode::kDeadlineExceeded || StopRequested()) {
         std::fprintf(stderr, "\nbpctl replay: batch %zu: %s\n", i, s.ToString().c_str());
@@ -152,7 +191,8 @@ int Replay(const Common& common, const ReplayOptions& options) {
   (void)pub->Flush(std::chrono::seconds(10));
   std::fprintf(stderr, "bpctl replay: %zu batches in %.2f s, %llu back-pressure retries\n",
                batches.size(), SecondsSince(start), static_cast<unsigned long long>(retries));
-  return StopRequested() ? 1 : 0;
+  if (StopRequested()) std::fprintf(stderr, "bpctl replay: interrupted\n");
+  return 0;
 }
 
 }  // namespace bp::bpctl

@@ -1,4 +1,5 @@
 // bpctl scene: publishes the WORKLOADS.md scene at a rate.
+#include <algorithm>
 #include <thread>
 
 #include "common.h"
@@ -63,8 +64,10 @@ int Scene(const Common& common, const SceneOptions& options) {
     std::fprintf(stderr, "bpctl scene: %s\n", s.ToString().c_str());
     return 1;
   }
-  const auto wait = std::chrono::milliseconds(static_cast<int64_t>(common.wait_s * 1000));
-  if (Status s = pub->WaitForReaders(options.readers, wait); !s.ok()) {
+  if (Status s = WaitInterruptibly(
+          common.wait_s,
+          [&](std::chrono::milliseconds t) { return pub->WaitForReaders(options.readers, t); });
+      !s.ok()) {
     std::fprintf(stderr, "bpctl scene: no daemon on domain %u partition '%s' (%s)\n",
                  common.config.dds.domain, common.config.dds.partition.c_str(),
                  s.ToString().c_str());
@@ -77,6 +80,11 @@ int Scene(const Common& common, const SceneOptions& options) {
                  p.n, p.moving, p.churn, p.dim, static_cast<unsigned long long>(p.seed),
                  options.producer, options.rate_hz);
   }
+  // Batches the daemon accepts: at most limits.max_batch_items items, and bytes below
+  // limits.max_batch_bytes (a box costs at most 8 + 2 * 3 * 4 bytes plus tags; 64 is safe).
+  const uint64_t max_items =
+      std::max<uint64_t>(1, std::min({options.max_items, common.config.limits.max_batch_items,
+                                      common.config.limits.max_batch_bytes / 64}));
   workload::Scene scene(p);
   workload::FrameOps ops;
   ops.inserts = scene.Initial();
@@ -92,8 +100,12 @@ int Scene(const Common& common, const SceneOptions& options) {
   auto next = start;
   uint64_t frame = 0;
   uint64_t late = 0;
+  bool failed = false;
   for (;;) {
-    if (!PublishFrame(*pub, ops, p.dim, frame + 1, options.max_items, &retries)) break;
+    if (!PublishFrame(*pub, ops, p.dim, frame + 1, max_items, &retries)) {
+      if (!StopRequested()) failed = true;
+      break;
+    }
     ++frame;
     if (options.frames != 0 && frame > options.frames) break;
     if (StopRequested()) break;
@@ -126,7 +138,7 @@ int Scene(const Common& common, const SceneOptions& options) {
                  static_cast<double>(frame) / std::max(seconds, 1e-9),
                  static_cast<unsigned long long>(late));
   }
-  return 0;
+  return failed ? 1 : 0;
 }
 
 }  // namespace bp::bpctl

@@ -40,8 +40,9 @@ int Watch(const Common& common, const WatchOptions& options) {
     std::fprintf(stderr, "bpctl watch: %s\n", s.ToString().c_str());
     return 1;
   }
-  const auto wait = std::chrono::milliseconds(static_cast<int64_t>(common.wait_s * 1000));
-  if (Status s = sub->WaitForDaemon(wait); !s.ok()) {
+  if (Status s = WaitInterruptibly(
+          common.wait_s, [&](std::chrono::milliseconds t) { return sub->WaitForDaemon(t); });
+      !s.ok()) {
     std::fprintf(stderr, "bpctl watch: no daemon on domain %u partition '%s' (%s)\n",
                  common.config.dds.domain, common.config.dds.partition.c_str(),
                  s.ToString().c_str());
@@ -135,25 +136,26 @@ int Watch(const Common& common, const WatchOptions& options) {
   if (options.stats) {
     // Sustained rate: frames after the first counted one over the time they took to arrive.
     const double span = std::chrono::duration<double>(last_frame - first_frame).count();
-    const double rate = total_frames > 1 && span > 0
-                            ? static_cast<double>(total_frames - 1) / span
-                            : 0.0;
+    const double rate =
+        total_frames > 1 && span > 0 ? static_cast<double>(total_frames - 1) / span : 0.0;
     std::vector<double> sorted = all_latency_ms;
     const double p50 = Percentile(sorted, 0.5), p99 = Percentile(sorted, 0.99);
     const double max = sorted.empty() ? 0 : *std::max_element(sorted.begin(), sorted.end());
     if (options.json) {
-      std::printf("{\"total\": true, \"frames\": %llu, \"seconds\": %.3f, \"frames_per_s\": "
-                  "%.2f, \"events\": %llu, \"latency_ms_p50\": %.3f, \"latency_ms_p99\": %.3f, "
-                  "\"latency_ms_max\": %.3f, \"gaps\": %llu}\n",
-                  static_cast<unsigned long long>(total_frames), span, rate,
-                  static_cast<unsigned long long>(total_events), p50, p99, max,
-                  static_cast<unsigned long long>(sub->gaps()));
+      std::printf(
+          "{\"total\": true, \"frames\": %llu, \"seconds\": %.3f, \"frames_per_s\": "
+          "%.2f, \"events\": %llu, \"latency_ms_p50\": %.3f, \"latency_ms_p99\": %.3f, "
+          "\"latency_ms_max\": %.3f, \"gaps\": %llu}\n",
+          static_cast<unsigned long long>(total_frames), span, rate,
+          static_cast<unsigned long long>(total_events), p50, p99, max,
+          static_cast<unsigned long long>(sub->gaps()));
     } else {
-      std::printf("total after %.0f s warm-up: %llu frames in %.2f s (%.1f frames/s), %llu "
-                  "events, update->event p50 %.2f ms p99 %.2f ms max %.2f ms, gaps %llu\n",
-                  options.warmup_s, static_cast<unsigned long long>(total_frames), span, rate,
-                  static_cast<unsigned long long>(total_events), p50, p99, max,
-                  static_cast<unsigned long long>(sub->gaps()));
+      std::printf(
+          "total after %.0f s warm-up: %llu frames in %.2f s (%.1f frames/s), %llu "
+          "events, update->event p50 %.2f ms p99 %.2f ms max %.2f ms, gaps %llu\n",
+          options.warmup_s, static_cast<unsigned long long>(total_frames), span, rate,
+          static_cast<unsigned long long>(total_events), p50, p99, max,
+          static_cast<unsigned long long>(sub->gaps()));
     }
     std::fflush(stdout);
   }

@@ -2,6 +2,8 @@
 
 #include <type_traits>
 
+#include <spdlog/spdlog.h>
+
 namespace bp::client {
 
 template <class Msg>
@@ -61,11 +63,18 @@ Status Subscriber<Msg>::Listen(std::function<void(const Msg&)> f) {
   if (listening_.exchange(true)) {
     return Status(StatusCode::kInvalidArgument, "already listening");
   }
+  if (listener_.joinable()) listener_.join();  // a listener that ended by itself
   listener_ = std::thread([this, f = std::move(f)] {
     std::vector<Msg> messages;
     while (listening_.load()) {
       messages.clear();
-      if (!Poll(std::chrono::milliseconds(100), &messages).ok()) return;
+      if (Status s = Poll(std::chrono::milliseconds(100), &messages); !s.ok()) {
+        spdlog::error("event listener stopped: {}", s.ToString());
+        std::lock_guard lock(listen_mutex_);
+        listen_status_ = s;
+        listening_.store(false);
+        return;
+      }
       for (const Msg& m : messages) f(m);
     }
   });
@@ -74,9 +83,17 @@ Status Subscriber<Msg>::Listen(std::function<void(const Msg&)> f) {
 
 template <class Msg>
 void Subscriber<Msg>::StopListening() {
-  if (!listening_.exchange(false)) return;
+  listening_.store(false);
   waitset_.Wake();
-  if (listener_.joinable()) listener_.join();
+  if (!listener_.joinable()) return;
+  if (listener_.get_id() == std::this_thread::get_id()) return;  // from the callback itself
+  listener_.join();
+}
+
+template <class Msg>
+Status Subscriber<Msg>::listen_status() const {
+  std::lock_guard lock(listen_mutex_);
+  return listen_status_;
 }
 
 template class Subscriber<wire::EventBatch>;

@@ -17,6 +17,7 @@
 
 #include <gtest/gtest.h>
 #include <stdlib.h>
+#include <unistd.h>
 
 #ifndef BP_SOURCE_DIR
 #error "compile with -DBP_SOURCE_DIR=\"<repository root>\""
@@ -676,6 +677,39 @@ TEST(ConfigNames, AreCanonical) {
     Config c = ParseOk("engine:\n  coordinate: " + std::string(CoordinateTypeName(t)) + "\n");
     EXPECT_EQ(c.engine.coordinate, t);
   }
+}
+
+}  // namespace
+}  // namespace bp::service
+
+namespace bp::service {
+namespace {
+
+// Without --config: $BP_CONFIG, then ./config/broadphased.yaml, then next to the executable.
+TEST(ConfigDefault, EnvironmentThenWorkingDirectoryThenNextToTheBinary) {
+  namespace fs = std::filesystem;
+  const fs::path dir =
+      fs::temp_directory_path() / ("bp-config-default-" + std::to_string(getpid()));
+  fs::create_directories(dir);
+  const fs::path mine = dir / "mine.yaml";
+  std::ofstream(mine) << "dds:\n  domain: 7\n";
+  const fs::path cwd = fs::current_path();
+  setenv("BP_CONFIG", mine.c_str(), 1);
+  Config config;
+  ASSERT_TRUE(LoadConfigOrDefault("", &config).ok());
+  EXPECT_EQ(config.dds.domain, 7u);
+  EXPECT_EQ(FindDefaultConfig(), mine.string());
+  unsetenv("BP_CONFIG");
+  fs::current_path(dir);  // no config/ here: the one above the test binary (the source tree's)
+  const std::string found = FindDefaultConfig();
+  fs::current_path(cwd);
+  EXPECT_NE(found.find("config/broadphased.yaml"), std::string::npos) << found;
+  EXPECT_TRUE(fs::path(found).is_absolute()) << found;
+  // An explicit path wins, and a missing one is an error naming it.
+  Status s = LoadConfigOrDefault((dir / "missing.yaml").string(), &config);
+  EXPECT_FALSE(s.ok());
+  EXPECT_NE(s.message().find("missing.yaml"), std::string::npos);
+  fs::remove_all(dir);
 }
 
 }  // namespace

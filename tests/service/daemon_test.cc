@@ -4,8 +4,8 @@
 #include <atomic>
 #include <cmath>
 #include <condition_variable>
-#include <mutex>
 #include <limits>
+#include <mutex>
 
 #include "service_test_support.h"
 

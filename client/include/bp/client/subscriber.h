@@ -13,6 +13,7 @@
 #include <cstdint>
 #include <functional>
 #include <memory>
+#include <mutex>
 #include <thread>
 #include <vector>
 
@@ -36,15 +37,20 @@ class Subscriber {
   /// Appends the messages available within timeout (possibly none) to out.
   Status Poll(std::chrono::milliseconds timeout, std::vector<Msg>* out);
   /// Calls f for each message on a thread of its own, until StopListening() or destruction
-  /// (the callback style; do not Poll while listening). f must not throw.
+  /// (the callback style; do not Poll while listening). f must not throw. A transport error
+  /// ends the listener; it is logged (spdlog) and kept in listen_status().
   Status Listen(std::function<void(const Msg&)> f);
-  /// Stops the listening thread and waits for it (idempotent).
+  /// Stops the listening thread and waits for it (idempotent). Called from inside the callback,
+  /// it only asks the thread to end (the thread cannot wait for itself); do not destroy the
+  /// subscriber from its own callback.
   void StopListening();
+  /// Why the listener thread ended early (ok while it runs or after StopListening()).
+  Status listen_status() const;
   ~Subscriber() { StopListening(); }
   /// Payloads that did not parse.
-  uint64_t malformed() const { return malformed_; }
+  uint64_t malformed() const { return malformed_.load(); }
   /// Envelopes missing between consecutive received sequence numbers.
-  uint64_t gaps() const { return gaps_; }
+  uint64_t gaps() const { return gaps_.load(); }
 
  private:
   Subscriber() = default;
@@ -52,9 +58,12 @@ class Subscriber {
   dds::WaitSet waitset_;
   std::thread listener_;
   std::atomic<bool> listening_{false};
+  mutable std::mutex listen_mutex_;
+  Status listen_status_;
   uint64_t last_seq_ = 0;
-  uint64_t malformed_ = 0;
-  uint64_t gaps_ = 0;
+  // Atomic: read by the application while the listener thread counts.
+  std::atomic<uint64_t> malformed_{0};
+  std::atomic<uint64_t> gaps_{0};
 };
 
 using EventSubscriber = Subscriber<wire::EventBatch>;
