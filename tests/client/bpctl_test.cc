@@ -107,6 +107,13 @@ TEST(Bpctl, RecordReplayAndCheckGiveIdenticalEvents) {
   for (auto& [f, p] : result.collides) checked[f].second.push_back(p);
   for (uint64_t f = 1; f <= kFrames; ++f) checked[f];  // frames without events
   EXPECT_EQ(checked, live);
+
+  // 5. A recorder killed mid-write leaves a partial last batch: check keeps the complete ones.
+  std::filesystem::resize_file(file, std::filesystem::file_size(file) - 10);
+  bpctl::CheckResult truncated;
+  ASSERT_EQ(bpctl::Check(common, check, &truncated), 0);
+  EXPECT_EQ(truncated.batches, kFrames - 1);
+  EXPECT_EQ(truncated.frames, kFrames - 1);
   std::filesystem::remove(file);
 }
 
