@@ -1,8 +1,8 @@
 #include "daemon.h"
 
 #include <algorithm>
-#include <limits>
 
+#include "percentile.h"
 #include <spdlog/spdlog.h>
 #include <unistd.h>
 
@@ -20,14 +20,6 @@ std::string HostName() {
   char name[256] = {};
   if (gethostname(name, sizeof(name) - 1) != 0) return "unknown";
   return name;
-}
-
-double Percentile(std::vector<double>& values, double p) {
-  if (values.empty()) return 0.0;
-  const size_t k =
-      std::min(values.size() - 1, static_cast<size_t>(p * static_cast<double>(values.size())));
-  std::nth_element(values.begin(), values.begin() + static_cast<std::ptrdiff_t>(k), values.end());
-  return values[k];
 }
 
 }  // namespace

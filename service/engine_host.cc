@@ -148,11 +148,6 @@ class TypedHost final : public EngineHost {
 
   uint64_t Objects() const override { return objects_; }
   uint64_t Overlaps() const override { return overlaps_; }
-  void ForEachOverlap(const std::function<void(uint64_t, uint64_t)>& f) const override {
-    engine_->ForEachOverlap([&](const uint64_t& a, const uint64_t& b) {
-      if (Reported(a, b)) f(a, b);
-    });
-  }
   Stats GetStats() const override { return engine_->GetStats(); }
   std::string Name() const override { return engine_->Name(); }
   int Dimension() const override { return K; }

@@ -72,8 +72,6 @@ class EngineHost {
   virtual uint64_t Objects() const = 0;
   /// Reported overlapping pairs as of the last query.
   virtual uint64_t Overlaps() const = 0;
-  /// Calls f(a, b) for every reported overlapping pair as of the last query.
-  virtual void ForEachOverlap(const std::function<void(uint64_t, uint64_t)>& f) const = 0;
   /// The engine's counters.
   virtual Stats GetStats() const = 0;
   /// The engine's algorithm name.

@@ -115,7 +115,7 @@ int Check(const Common& common, const CheckOptions& options, CheckResult* out) {
       if (first_rejection.empty()) first_rejection = refused.message;
       continue;
     }
-    service::ApplyCounts counts_e, counts_g;
+    service::ApplyCounts counts_e, counts_g;  // the same for both when the rejections agree
     std::vector<std::string> rejects_e, rejects_g;
     engine->Apply(
         batch, [&](service::Reject&& r) { rejects_e.push_back(r.message); }, &counts_e);

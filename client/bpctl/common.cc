@@ -2,6 +2,8 @@
 
 #include <atomic>
 
+#include "engine_host.h"
+
 namespace bp::bpctl {
 namespace {
 std::atomic<bool> stop_requested{false};
@@ -47,7 +49,8 @@ Status WaitInterruptibly(double timeout_s,
 }
 
 std::string KeyName(uint64_t key) {
-  return std::to_string(key >> 48) + ":" + std::to_string(key & ((uint64_t{1} << 48) - 1));
+  return std::to_string(key >> service::kProducerShift) + ":" +
+         std::to_string(key & (service::kLocalIdLimit - 1));
 }
 
 }  // namespace bp::bpctl

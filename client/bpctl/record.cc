@@ -43,26 +43,31 @@ int Record(const Common& common, const RecordOptions& options) {
   const auto start = std::chrono::steady_clock::now();
   auto report_at = start + std::chrono::seconds(1);
   Status failure;
-  while (!StopRequested() && failure.ok()) {
-    if (options.seconds > 0 && SecondsSince(start) >= options.seconds) break;
-    if (options.batches > 0 && writer.batches() >= options.batches) break;
-    int triggered = 0;
-    if (Status s = waitset.Wait(std::chrono::milliseconds(100), &triggered); !s.ok()) {
-      failure = s;
-      break;
-    }
+  const auto full = [&] { return options.batches > 0 && writer.batches() >= options.batches; };
+  // Takes what the reader holds (up to 64) into the file; the number taken.
+  const auto take_some = [&] {
     size_t taken = 0;
     Status s = reader.Take(
         64,
         [&](const dds::Received& r) {
-          if (!failure.ok()) return;
-          if (options.batches > 0 && writer.batches() >= options.batches) return;
+          if (!failure.ok() || full()) return;
           failure = writer.Append(
               client::WallClockNs(),
               std::string_view(reinterpret_cast<const char*>(r.payload.data()), r.payload.size()));
         },
         &taken);
     if (!s.ok()) failure = s;
+    return taken;
+  };
+  while (!StopRequested() && failure.ok()) {
+    if (options.seconds > 0 && SecondsSince(start) >= options.seconds) break;
+    if (full()) break;
+    int triggered = 0;
+    if (Status s = waitset.Wait(std::chrono::milliseconds(100), &triggered); !s.ok()) {
+      failure = s;
+      break;
+    }
+    take_some();
     if (std::chrono::steady_clock::now() >= report_at) {
       std::fprintf(stderr, "bpctl record: %llu batches, %.1f MB\n",
                    static_cast<unsigned long long>(writer.batches()),
@@ -73,19 +78,7 @@ int Record(const Common& common, const RecordOptions& options) {
   }
   // Batches already delivered to this reader (and acknowledged to their producers) belong to
   // the recording: take what is left before closing.
-  for (size_t taken = 1; taken > 0 && failure.ok();) {
-    if (options.batches > 0 && writer.batches() >= options.batches) break;
-    Status s = reader.Take(
-        64,
-        [&](const dds::Received& r) {
-          if (!failure.ok()) return;
-          if (options.batches > 0 && writer.batches() >= options.batches) return;
-          failure = writer.Append(
-              client::WallClockNs(),
-              std::string_view(reinterpret_cast<const char*>(r.payload.data()), r.payload.size()));
-        },
-        &taken);
-    if (!s.ok()) failure = s;
+  while (failure.ok() && !full() && take_some() > 0) {
   }
   Status closed = writer.Close();
   if (!failure.ok() || !closed.ok()) {

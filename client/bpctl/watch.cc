@@ -3,6 +3,7 @@
 #include <vector>
 
 #include "common.h"
+#include "percentile.h"
 
 #include "bp/client/subscriber.h"
 #include "bp/client/update_publisher.h"
@@ -10,12 +11,7 @@
 namespace bp::bpctl {
 namespace {
 
-double Percentile(std::vector<double>& v, double p) {
-  if (v.empty()) return 0;
-  const size_t k = std::min(v.size() - 1, static_cast<size_t>(p * static_cast<double>(v.size())));
-  std::nth_element(v.begin(), v.begin() + static_cast<std::ptrdiff_t>(k), v.end());
-  return v[k];
-}
+using service::Percentile;
 
 const char* HealthName(wire::Health h) {
   switch (h) {
@@ -105,33 +101,30 @@ int Watch(const Common& common, const WatchOptions& options) {
       continue;
     }
     const double window = SecondsSince(window_start);
-    if (window >= 1.0 && options.json) {
+    if (window < 1.0) continue;
+    const double p50 = Percentile(latency_ms, 0.5), p99 = Percentile(latency_ms, 0.99);
+    if (options.json) {
       std::printf(
           "{\"objects\": %llu, \"overlaps\": %llu, \"frames_per_s\": %.2f, \"events_per_s\": "
           "%.1f, \"latency_ms_p50\": %.3f, \"latency_ms_p99\": %.3f, \"gaps\": %llu}\n",
           static_cast<unsigned long long>(objects), static_cast<unsigned long long>(overlaps),
           static_cast<double>(window_frames) / window,
-          static_cast<double>(window_collides + window_uncollides) / window,
-          Percentile(latency_ms, 0.5), Percentile(latency_ms, 0.99),
+          static_cast<double>(window_collides + window_uncollides) / window, p50, p99,
           static_cast<unsigned long long>(sub->gaps()));
-      std::fflush(stdout);
-      window_start = std::chrono::steady_clock::now();
-      window_frames = window_collides = window_uncollides = 0;
-      latency_ms.clear();
-    } else if (window >= 1.0) {
+    } else {
       std::printf(
           "objects %llu | overlaps %llu | %.1f frames/s | %.0f collides/s | %.0f uncollides/s | "
           "update->event p50 %.2f ms p99 %.2f ms | gaps %llu\n",
           static_cast<unsigned long long>(objects), static_cast<unsigned long long>(overlaps),
           static_cast<double>(window_frames) / window,
           static_cast<double>(window_collides) / window,
-          static_cast<double>(window_uncollides) / window, Percentile(latency_ms, 0.5),
-          Percentile(latency_ms, 0.99), static_cast<unsigned long long>(sub->gaps()));
-      std::fflush(stdout);
-      window_start = std::chrono::steady_clock::now();
-      window_frames = window_collides = window_uncollides = 0;
-      latency_ms.clear();
+          static_cast<double>(window_uncollides) / window, p50, p99,
+          static_cast<unsigned long long>(sub->gaps()));
     }
+    std::fflush(stdout);
+    window_start = std::chrono::steady_clock::now();
+    window_frames = window_collides = window_uncollides = 0;
+    latency_ms.clear();
   }
   if (options.stats) {
     // Sustained rate: frames after the first counted one over the time they took to arrive.

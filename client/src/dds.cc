@@ -204,12 +204,6 @@ Status Writer::WaitForAcks(std::chrono::milliseconds timeout) const {
   return FromRetcode(dds_wait_for_acks(writer_.get(), ToDds(timeout)), "waiting for DDS acks");
 }
 
-dds_instance_handle_t Writer::InstanceHandle() const {
-  dds_instance_handle_t handle = 0;
-  (void)dds_get_instance_handle(writer_.get(), &handle);
-  return handle;
-}
-
 Status Reader::Create(const Participant& participant, dds_entity_t topic, const Qos& qos,
                       Reader* out) {
   const dds_entity_t reader =

@@ -136,8 +136,6 @@ class Writer {
   Status WaitForReaders(uint32_t n, std::chrono::milliseconds timeout) const;
   /// Waits until every matched reliable reader has acknowledged everything written.
   Status WaitForAcks(std::chrono::milliseconds timeout) const;
-  /// The writer's instance handle (readers see it as publication_handle).
-  dds_instance_handle_t InstanceHandle() const;
   dds_entity_t get() const { return writer_.get(); }
 
  private:
