@@ -6,7 +6,9 @@
 //   bpbench                                   S2a, S2c, S1-10k through segmented_sap
 //   bpbench --scenario S1-100k --repeats 3
 //   bpbench --sort local|global|auto --chunk 64 --coord double
-//   bpbench --threshold-sweep                 local vs global sort over the moving fraction
+//   bpbench --engine batch_sap --sort local|global|auto
+//   bpbench --threshold-sweep [--engine E]    local vs global sort over the moving fraction
+//   bpbench --figure 8|9                      the paper's single-cell figures, every cell variant
 #include <algorithm>
 #include <cinttypes>
 #include <cstdint>
@@ -20,6 +22,7 @@
 #include <sys/resource.h>
 #include <unistd.h>
 
+#include "bp/batch_sap.h"
 #include "bp/brute_force.h"
 #include "bp/scene_runner.h"
 #include "bp/segmented_sap.h"
@@ -34,6 +37,7 @@ struct Config {
   std::string engine = "segmented_sap";
   std::string coord = "float";
   std::string sort = "auto";
+  std::string variant;  // a label for the figure sweeps
   uint32_t chunk = 32;
   double global_fraction = bp::SegmentedSapOptions().global_sort_fraction;
   int repeats = 5;
@@ -79,9 +83,18 @@ bp::SegmentedSapOptions SapOptions(const Config& cfg) {
   return options;
 }
 
+bp::BatchSapOptions BatchOptions(const Config& cfg) {
+  bp::BatchSapOptions options;
+  options.global_sort_fraction = cfg.sort == "local"    ? 1e300
+                                 : cfg.sort == "global" ? 0.0
+                                                        : cfg.global_fraction;
+  return options;
+}
+
 template <int K, class T>
 std::unique_ptr<bp::Broadphase<K, T>> MakeEngine(const Config& cfg) {
   if (cfg.engine == "brute_force") return std::make_unique<bp::BruteForce<K, T>>();
+  if (cfg.engine == "batch_sap") return std::make_unique<bp::BatchSap<K, T>>(BatchOptions(cfg));
   return std::make_unique<bp::SegmentedSap<K, T>>(SapOptions(cfg));
 }
 
@@ -147,10 +160,11 @@ void PrintJson(const std::string& scenario, const SceneParams& p, int frames, co
   o << "{\"scenario\":\"" << scenario << "\",\"engine\":\"" << cfg.engine << "\",\"dim\":" << p.dim
     << ",\"coord\":\"" << cfg.coord << "\",\"n\":" << p.n << ",\"moving\":" << p.moving
     << ",\"churn\":" << p.churn << ",\"frames\":" << frames << ",\"repeats\":" << cfg.repeats;
-  if (cfg.engine == "segmented_sap") {
-    o << ",\"chunk\":" << cfg.chunk << ",\"sort\":\"" << cfg.sort
-      << "\",\"global_fraction\":" << cfg.global_fraction;
+  if (cfg.engine == "segmented_sap") o << ",\"chunk\":" << cfg.chunk;
+  if (cfg.engine != "brute_force") {
+    o << ",\"sort\":\"" << cfg.sort << "\",\"global_fraction\":" << cfg.global_fraction;
   }
+  if (!cfg.variant.empty()) o << ",\"variant\":\"" << cfg.variant << "\"";
   o << extra << ",\"median_ms\":" << Quantile(r.run_medians, 0.5)
     << ",\"mean_ms\":" << Mean(r.frame_ms) << ",\"p90_ms\":" << Quantile(r.frame_ms, 0.9)
     << ",\"run_medians_ms\":[";
@@ -198,6 +212,59 @@ void ThresholdSweep(Config cfg, const std::vector<uint32_t>& sizes) {
   }
 }
 
+// The cells compared in the figure sweeps: the batch cell, the segmented cell as the paper
+// describes it, and the segmented cell forced to sort globally or locally (the adaptive choice
+// should follow the lower of the two).
+std::vector<Config> FigureVariants(const Config& base) {
+  std::vector<Config> out;
+  auto add = [&](const char* variant, const char* engine, const char* sort) {
+    Config c = base;
+    c.variant = variant;
+    c.engine = engine;
+    c.sort = sort;
+    out.push_back(c);
+  };
+  add("batch", "batch_sap", "auto");
+  add("segmented", "segmented_sap", "auto");
+  add("segmented, global sort only", "segmented_sap", "global");
+  add("segmented, local sort only", "segmented_sap", "local");
+  return out;
+}
+
+// The paper's single-cell figures (section 4.1), 3000 objects, no subdivision:
+//  8: one insert and one erase per frame, moving fraction swept from 5% to 100%;
+//  9: 150 moving (5%), inserts = erases per frame swept from 1 to 100.
+void Figure(int figure, const Config& base) {
+  int frames = base.frames > 0 ? base.frames : 200;
+  std::vector<SceneParams> points;
+  if (figure == 8) {
+    for (double f : {0.05, 0.1, 0.2, 0.3, 0.4, 0.5, 0.6, 0.7, 0.8, 0.9, 1.0}) {
+      SceneParams p;
+      p.n = 3000;
+      p.moving = static_cast<uint32_t>(f * p.n + 0.5);
+      p.churn = 1;
+      points.push_back(p);
+    }
+  } else {
+    for (uint32_t c : {1u, 2u, 5u, 10u, 15u, 20u, 30u, 40u, 50u, 60u, 80u, 100u}) {
+      SceneParams p;
+      p.n = 3000;
+      p.moving = 150;
+      p.churn = c;
+      points.push_back(p);
+    }
+  }
+  const std::string scenario = "fig" + std::to_string(figure);
+  for (const SceneParams& p : points) {
+    for (const Config& cfg : FigureVariants(base)) {
+      std::string label = scenario + " moving=" + std::to_string(p.moving) +
+                          " churn=" + std::to_string(p.churn) + " " + cfg.variant;
+      Result r = Run(p, frames, cfg, label);
+      PrintJson(scenario, p, frames, cfg, r, nullptr, "");
+    }
+  }
+}
+
 }  // namespace
 
 int main(int argc, char** argv) {
@@ -211,13 +278,13 @@ int main(int argc, char** argv) {
                  "comma-separated golden scenarios: S2a,S2b,S2c,S1-10k,S1-100k,S1-200k,S3,S4,2-D")
       ->capture_default_str();
   app.add_option("--custom", custom, "a custom 3-D scene instead: N,MOVING,CHURN");
-  app.add_option("--engine,-e", cfg.engine, "segmented_sap or brute_force")
-      ->check(CLI::IsMember({"segmented_sap", "brute_force"}))
+  app.add_option("--engine,-e", cfg.engine, "segmented_sap, batch_sap or brute_force")
+      ->check(CLI::IsMember({"segmented_sap", "batch_sap", "brute_force"}))
       ->capture_default_str();
   app.add_option("--coord", cfg.coord, "coordinate type")
       ->check(CLI::IsMember({"float", "double", "int32"}))
       ->capture_default_str();
-  app.add_option("--sort", cfg.sort, "segmented_sap re-sort: auto, local or global")
+  app.add_option("--sort", cfg.sort, "re-sort of moved objects: auto, local or global")
       ->check(CLI::IsMember({"auto", "local", "global"}))
       ->capture_default_str();
   app.add_option("--global-fraction", cfg.global_fraction,
@@ -232,6 +299,9 @@ int main(int argc, char** argv) {
   app.add_option("--frames,-f", cfg.frames, "frames per run (0: the scenario's 100)")
       ->check(CLI::Range(0, 100000));
   app.add_flag("--threshold-sweep", sweep, "measure local vs global sort over moving fractions");
+  int figure = 0;
+  app.add_option("--figure", figure, "the paper's figure 8 or 9 (single cell, every cell variant)")
+      ->check(CLI::IsMember({8, 9}));
   app.add_option("--sweep-sizes", sweep_sizes, "object counts of the threshold sweep")
       ->capture_default_str();
   CLI11_PARSE(app, argc, argv);
@@ -239,6 +309,10 @@ int main(int argc, char** argv) {
 
   if (sweep) {
     ThresholdSweep(cfg, sweep_sizes);
+    return 0;
+  }
+  if (figure != 0) {
+    Figure(figure, cfg);
     return 0;
   }
   if (!custom.empty()) {

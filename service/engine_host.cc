@@ -7,6 +7,7 @@
 #include <unordered_set>
 
 #include "bp/brute_force.h"
+#include "bp/batch_sap.h"
 #include "bp/segmented_sap.h"
 
 namespace bp::service {
@@ -322,9 +323,11 @@ Status Make(const EngineConfig& config, uint64_t max_objects, std::unique_ptr<En
     engine = std::make_unique<BruteForce<K, T, uint64_t>>();
   } else if (config.algorithm == "segmented_sap") {
     engine = std::make_unique<SegmentedSap<K, T, uint64_t>>();
+  } else if (config.algorithm == "batch_sap") {
+    engine = std::make_unique<BatchSap<K, T, uint64_t>>();
   } else {
     return Status(StatusCode::kInvalidArgument, "unknown engine algorithm '" + config.algorithm +
-                                                    "' (known: brute_force, segmented_sap)");
+                                                    "' (known: brute_force, segmented_sap, batch_sap)");
   }
   *out = std::make_unique<TypedHost<K, T>>(std::move(engine), max_objects);
   return Status::Ok();

@@ -107,6 +107,14 @@ TEST(Bpctl, RecordReplayAndCheckGiveIdenticalEvents) {
   for (auto& [f, p] : result.collides) checked[f].second.push_back(p);
   for (uint64_t f = 1; f <= kFrames; ++f) checked[f];  // frames without events
   EXPECT_EQ(checked, live);
+  // ... and so does the batch engine.
+  bpctl::CheckOptions batch_check = check;
+  batch_check.engine = "batch_sap";
+  bpctl::CheckResult batch_result;
+  ASSERT_EQ(bpctl::Check(common, batch_check, &batch_result), 0);
+  EXPECT_TRUE(batch_result.identical);
+  EXPECT_EQ(batch_result.collides, result.collides);
+  EXPECT_EQ(batch_result.uncollides, result.uncollides);
 
   // 5. A recorder killed mid-write leaves a partial last batch: check keeps the complete ones.
   std::filesystem::resize_file(file, std::filesystem::file_size(file) - 10);

@@ -278,13 +278,28 @@ class SegmentedSapTinyChunksLocal : public DifferentialTest<C> {};
 template <class C>
 class SegmentedSapTinyChunksGlobal : public DifferentialTest<C> {};
 
+template <class C>
+class BatchSapDiff : public DifferentialTest<C> {};
+template <class C>
+class BatchSapAlwaysLocal : public DifferentialTest<C> {};
+template <class C>
+class BatchSapAlwaysGlobal : public DifferentialTest<C> {};
+
 using BruteForceShapes = AllShapes<MakeBruteForce>;
 using SapShapes = AllShapes<MakeSegmentedSap<32, 7>>;  // the default options
 // Local sort and one-at-a-time inserts only.
 using SapTinyLocalShapes = AllShapes<MakeSegmentedSap<4, -1, 0>>;
 // Global sort always, and a bulk rebuild whenever a frame's inserts reach the live count.
 using SapTinyGlobalShapes = AllShapes<MakeSegmentedSap<4, 0, 1>>;
+// BatchSap: the default options; local sort whenever no insert or erase is pending; and a
+// global pass at every query.
+using BatchShapes = AllShapes<MakeBatchSap<7>>;
+using BatchLocalShapes = AllShapes<MakeBatchSap<-1>>;
+using BatchGlobalShapes = AllShapes<MakeBatchSap<0>>;
 TYPED_TEST_SUITE(BruteForceDiff, BruteForceShapes);
+TYPED_TEST_SUITE(BatchSapDiff, BatchShapes);
+TYPED_TEST_SUITE(BatchSapAlwaysLocal, BatchLocalShapes);
+TYPED_TEST_SUITE(BatchSapAlwaysGlobal, BatchGlobalShapes);
 TYPED_TEST_SUITE(SegmentedSapDiff, SapShapes);
 TYPED_TEST_SUITE(SegmentedSapTinyChunksLocal, SapTinyLocalShapes);
 TYPED_TEST_SUITE(SegmentedSapTinyChunksGlobal, SapTinyGlobalShapes);
@@ -303,6 +318,9 @@ BP_DIFFERENTIAL_TESTS(BruteForceDiff)
 BP_DIFFERENTIAL_TESTS(SegmentedSapDiff)
 BP_DIFFERENTIAL_TESTS(SegmentedSapTinyChunksLocal)
 BP_DIFFERENTIAL_TESTS(SegmentedSapTinyChunksGlobal)
+BP_DIFFERENTIAL_TESTS(BatchSapDiff)
+BP_DIFFERENTIAL_TESTS(BatchSapAlwaysLocal)
+BP_DIFFERENTIAL_TESTS(BatchSapAlwaysGlobal)
 
 }  // namespace
 }  // namespace bp::test

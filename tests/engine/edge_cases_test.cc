@@ -69,10 +69,14 @@ template <class C>
 class SegmentedSapEdge : public EdgeCaseTest<C> {};
 template <class C>
 class SegmentedSapTinyEdge : public EdgeCaseTest<C> {};
+template <class C>
+class BatchSapEdge : public EdgeCaseTest<C> {};
 using BruteForceEdgeShapes = EdgeShapes<MakeBruteForce>;
 using SapEdgeShapes = EdgeShapes<MakeSegmentedSap<32, 7>>;
 using SapTinyEdgeShapes = EdgeShapes<MakeSegmentedSap<4, -1>>;
+using BatchEdgeShapes = EdgeShapes<MakeBatchSap<7>>;
 TYPED_TEST_SUITE(BruteForceEdge, BruteForceEdgeShapes);
+TYPED_TEST_SUITE(BatchSapEdge, BatchEdgeShapes);
 TYPED_TEST_SUITE(SegmentedSapEdge, SapEdgeShapes);
 TYPED_TEST_SUITE(SegmentedSapTinyEdge, SapTinyEdgeShapes);
 
@@ -290,10 +294,12 @@ TYPED_TEST_SUITE(SegmentedSapTinyEdge, SapTinyEdgeShapes);
 BP_BULK_CASE(BruteForceEdge)
 BP_BULK_CASE(SegmentedSapEdge)
 BP_BULK_CASE(SegmentedSapTinyEdge)
+BP_BULK_CASE(BatchSapEdge)
 
 BP_EDGE_CASES(BruteForceEdge)
 BP_EDGE_CASES(SegmentedSapEdge)
 BP_EDGE_CASES(SegmentedSapTinyEdge)
+BP_EDGE_CASES(BatchSapEdge)
 
 // A fast mover's min passes its own max and crosses chunk boundaries before the max follows:
 // the paper's R set must absorb it (white-box: the counter proves the path ran).

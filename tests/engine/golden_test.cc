@@ -8,6 +8,7 @@
 
 #include <gtest/gtest.h>
 
+#include "bp/batch_sap.h"
 #include "bp/brute_force.h"
 #include "bp/scene_runner.h"
 #include "bp/segmented_sap.h"
@@ -68,6 +69,36 @@ TEST(GoldenSegmentedSap, TinyChunksAlwaysGlobalS2b) {
 TEST(GoldenSegmentedSap, LargeRows) {
   if (!LongTests()) GTEST_SKIP() << "set BP_LONG_TESTS=1 for S1-100k, S1-200k, S3, S4";
   for (const char* name : {"S4", "S1-100k", "S3", "S1-200k"}) ExpectGoldenSap<3, float>(name);
+}
+
+template <int K, Coordinate T>
+void ExpectGoldenBatch(const char* name) {
+  const GoldenScenario* g = FindGolden(name);
+  ASSERT_NE(g, nullptr);
+  BatchSap<K, T> engine;
+  ExpectGolden<K, T>(engine, *g);
+}
+
+TEST(GoldenBatchSap, S2aFloat) { ExpectGoldenBatch<3, float>("S2a"); }
+TEST(GoldenBatchSap, S2aDouble) { ExpectGoldenBatch<3, double>("S2a"); }
+TEST(GoldenBatchSap, S2aInt32) { ExpectGoldenBatch<3, int32_t>("S2a"); }
+TEST(GoldenBatchSap, S2bFloat) { ExpectGoldenBatch<3, float>("S2b"); }
+TEST(GoldenBatchSap, S2cDouble) { ExpectGoldenBatch<3, double>("S2c"); }
+TEST(GoldenBatchSap, S1_10kFloat) { ExpectGoldenBatch<3, float>("S1-10k"); }
+TEST(GoldenBatchSap, S1_10kInt32) { ExpectGoldenBatch<3, int32_t>("S1-10k"); }
+TEST(GoldenBatchSap, Planar2DFloat) { ExpectGoldenBatch<2, float>("2-D"); }
+TEST(GoldenBatchSap, Planar2DDouble) { ExpectGoldenBatch<2, double>("2-D"); }
+
+TEST(GoldenBatchSap, AlwaysLocalS2b) {
+  BatchSapOptions options;
+  options.global_sort_fraction = 1e300;  // local sort whenever no record is pending
+  BatchSap<3, float> engine(options);
+  ExpectGolden<3, float>(engine, *FindGolden("S2b"));
+}
+
+TEST(GoldenBatchSap, LargeRows) {
+  if (!LongTests()) GTEST_SKIP() << "set BP_LONG_TESTS=1 for S1-100k, S1-200k, S3, S4";
+  for (const char* name : {"S4", "S1-100k", "S3", "S1-200k"}) ExpectGoldenBatch<3, float>(name);
 }
 
 TEST(GoldenBruteForce, S2aFloat) {

@@ -14,6 +14,7 @@
 
 #include "bp/box.h"
 #include "bp/broadphase.h"
+#include "bp/batch_sap.h"
 #include "bp/brute_force.h"
 #include "bp/segmented_sap.h"
 
@@ -107,6 +108,19 @@ struct MakeSegmentedSap {
     return "SegmentedSap_c" + std::to_string(kCapacity) + "_g" + std::to_string(kGlobalPercent) +
            "_b" + std::to_string(kBulkMin);
   }
+};
+
+/// BatchSap with the given global-sort fraction (percent; -1: never, so queries without inserts
+/// or erases always sort per moved object).
+template <int kGlobalPercent>
+struct MakeBatchSap {
+  template <int K, class T>
+  static std::unique_ptr<Broadphase<K, T>> Create() {
+    BatchSapOptions options;
+    options.global_sort_fraction = kGlobalPercent < 0 ? 1e300 : kGlobalPercent / 100.0;
+    return std::make_unique<BatchSap<K, T>>(options);
+  }
+  static std::string Name() { return "BatchSap_g" + std::to_string(kGlobalPercent); }
 };
 
 /// Seeds to run: BP_TEST_SEED alone if set, else `count` seeds derived from `base`, or
