@@ -96,8 +96,8 @@ class SegmentedSapCore {
              std::span<const HandleBox<K, T>> inserts) {
     swaps_ = 0;
     tests_ = 0;
-    const bool presorted = options_.presorted_min != 0 &&
-                           erases.size() + inserts.size() >= options_.presorted_min;
+    const bool presorted =
+        options_.presorted_min != 0 && erases.size() + inserts.size() >= options_.presorted_min;
     if (presorted) {
       EraseBatch(erases);
     } else {
@@ -952,12 +952,12 @@ class SegmentedSapCore {
   size_t r_set_entries_ = 0;
   size_t presorted_queries_ = 0;
   // Scratch of the presorted path, kept to reuse their allocations.
-  std::vector<Ext> batch_ext_;                            // new extrema of one axis, sorted
-  std::vector<Ext> merged_;                               // one overflowing chunk's merge
-  std::vector<uint32_t> batch_pos_;                       // erased positions of one axis, sorted
-  std::vector<uint32_t> touched_;                         // chunks to merge after compaction
-  std::vector<uint32_t> run_chunks_;                      // a chunk and the chunks it spread to
-  std::vector<std::pair<size_t, uint32_t>> new_chunks_;   // (rank of origin, new chunk id)
+  std::vector<Ext> batch_ext_;                           // new extrema of one axis, sorted
+  std::vector<Ext> merged_;                              // one overflowing chunk's merge
+  std::vector<uint32_t> batch_pos_;                      // erased positions of one axis, sorted
+  std::vector<uint32_t> touched_;                        // chunks to merge after compaction
+  std::vector<uint32_t> run_chunks_;                     // a chunk and the chunks it spread to
+  std::vector<std::pair<size_t, uint32_t>> new_chunks_;  // (rank of origin, new chunk id)
   std::vector<uint32_t> new_order_;
   bool global_ = false;
   bool rebuilt_ = false;
