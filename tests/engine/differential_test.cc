@@ -279,6 +279,10 @@ template <class C>
 class SegmentedSapTinyChunksGlobal : public DifferentialTest<C> {};
 
 template <class C>
+class SegmentedSapPresorted : public DifferentialTest<C> {};
+template <class C>
+class SegmentedSapTinyChunksPresorted : public DifferentialTest<C> {};
+template <class C>
 class BatchSapDiff : public DifferentialTest<C> {};
 template <class C>
 class BatchSapAlwaysLocal : public DifferentialTest<C> {};
@@ -287,8 +291,8 @@ class BatchSapAlwaysGlobal : public DifferentialTest<C> {};
 
 using BruteForceShapes = AllShapes<MakeBruteForce>;
 using SapShapes = AllShapes<MakeSegmentedSap<32, 7>>;  // the default options
-// Local sort and one-at-a-time inserts only.
-using SapTinyLocalShapes = AllShapes<MakeSegmentedSap<4, -1, 0>>;
+// Local sort and one-at-a-time inserts and erases only.
+using SapTinyLocalShapes = AllShapes<MakeSegmentedSap<4, -1, 0, 0>>;
 // Global sort always, and a bulk rebuild whenever a frame's inserts reach the live count.
 using SapTinyGlobalShapes = AllShapes<MakeSegmentedSap<4, 0, 1>>;
 // BatchSap: the default options; local sort whenever no insert or erase is pending; and a
@@ -303,6 +307,12 @@ TYPED_TEST_SUITE(BatchSapAlwaysGlobal, BatchGlobalShapes);
 TYPED_TEST_SUITE(SegmentedSapDiff, SapShapes);
 TYPED_TEST_SUITE(SegmentedSapTinyChunksLocal, SapTinyLocalShapes);
 TYPED_TEST_SUITE(SegmentedSapTinyChunksGlobal, SapTinyGlobalShapes);
+// Every insert and erase chunk by chunk (presorted), default chunks; and tiny chunks with local
+// sort and no bulk loads, so that bursts spread over many new chunks.
+using SapPresortedShapes = AllShapes<MakeSegmentedSap<32, 7, 64, 1>>;
+using SapTinyPresortedShapes = AllShapes<MakeSegmentedSap<4, -1, 0, 1>>;
+TYPED_TEST_SUITE(SegmentedSapPresorted, SapPresortedShapes);
+TYPED_TEST_SUITE(SegmentedSapTinyChunksPresorted, SapTinyPresortedShapes);
 
 #define BP_DIFFERENTIAL_TESTS(Suite)                                                 \
   TYPED_TEST(Suite, RandomOperationsMatchOracle) {                                   \
@@ -318,6 +328,8 @@ BP_DIFFERENTIAL_TESTS(BruteForceDiff)
 BP_DIFFERENTIAL_TESTS(SegmentedSapDiff)
 BP_DIFFERENTIAL_TESTS(SegmentedSapTinyChunksLocal)
 BP_DIFFERENTIAL_TESTS(SegmentedSapTinyChunksGlobal)
+BP_DIFFERENTIAL_TESTS(SegmentedSapPresorted)
+BP_DIFFERENTIAL_TESTS(SegmentedSapTinyChunksPresorted)
 BP_DIFFERENTIAL_TESTS(BatchSapDiff)
 BP_DIFFERENTIAL_TESTS(BatchSapAlwaysLocal)
 BP_DIFFERENTIAL_TESTS(BatchSapAlwaysGlobal)

@@ -66,6 +66,34 @@ TEST(GoldenSegmentedSap, TinyChunksAlwaysGlobalS2b) {
   ExpectGolden<3, float>(engine, *FindGolden("S2b"));
 }
 
+// The default presorts S2c, S1-10k and 2-D (80..100 inserts + erases a frame) but not S2a and
+// S2b: run each row through the other path too.
+TEST(GoldenSegmentedSap, PresortedAlwaysS2aS2b) {
+  SegmentedSapOptions options;
+  options.presorted_min = 1;
+  for (const char* name : {"S2a", "S2b"}) {
+    SegmentedSap<3, float> engine(options);
+    ExpectGolden<3, float>(engine, *FindGolden(name));
+  }
+}
+
+TEST(GoldenSegmentedSap, PerEventS2cS1_10k) {
+  SegmentedSapOptions options;
+  options.presorted_min = 0;
+  for (const char* name : {"S2c", "S1-10k"}) {
+    SegmentedSap<3, float> engine(options);
+    ExpectGolden<3, float>(engine, *FindGolden(name));
+  }
+}
+
+TEST(GoldenSegmentedSap, TinyChunksPresortedS2c) {
+  SegmentedSapOptions options;
+  options.chunk_capacity = 4;
+  options.presorted_min = 1;
+  SegmentedSap<3, float> engine(options);
+  ExpectGolden<3, float>(engine, *FindGolden("S2c"));
+}
+
 TEST(GoldenSegmentedSap, LargeRows) {
   if (!LongTests()) GTEST_SKIP() << "set BP_LONG_TESTS=1 for S1-100k, S1-200k, S3, S4";
   for (const char* name : {"S4", "S1-100k", "S3", "S1-200k"}) ExpectGoldenSap<3, float>(name);

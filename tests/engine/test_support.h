@@ -92,9 +92,10 @@ struct MakeBruteForce {
   static std::string Name() { return "BruteForce"; }
 };
 
-/// SegmentedSap with the given chunk capacity, global-sort fraction (percent; -1: never) and
-/// bulk-load minimum (0: never).
-template <uint32_t kCapacity, int kGlobalPercent, uint32_t kBulkMin = 64>
+/// SegmentedSap with the given chunk capacity, global-sort fraction (percent; -1: never),
+/// bulk-load minimum (0: never) and presorted minimum (0: never; 1: every insert and erase).
+template <uint32_t kCapacity, int kGlobalPercent, uint32_t kBulkMin = 64,
+          uint32_t kPresortedMin = SegmentedSapOptions{}.presorted_min>
 struct MakeSegmentedSap {
   template <int K, class T>
   static std::unique_ptr<Broadphase<K, T>> Create() {
@@ -102,11 +103,12 @@ struct MakeSegmentedSap {
     options.chunk_capacity = kCapacity;
     options.global_sort_fraction = kGlobalPercent < 0 ? 1e300 : kGlobalPercent / 100.0;
     options.bulk_load_min = kBulkMin;
+    options.presorted_min = kPresortedMin;
     return std::make_unique<SegmentedSap<K, T>>(options);
   }
   static std::string Name() {
     return "SegmentedSap_c" + std::to_string(kCapacity) + "_g" + std::to_string(kGlobalPercent) +
-           "_b" + std::to_string(kBulkMin);
+           "_b" + std::to_string(kBulkMin) + "_p" + std::to_string(kPresortedMin);
   }
 };
 
