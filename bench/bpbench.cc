@@ -240,26 +240,26 @@ std::vector<Config> FigureVariants(const Config& base) {
   return out;
 }
 
-// The paper's single-cell figures (section 4.1), 3000 objects, no subdivision:
+// The paper's single-cell figures (section 4.1), 3000 objects (or `objects`), no subdivision:
 //  8: one insert and one erase per frame, moving fraction swept from 5% to 100%;
-//  9: 150 moving (5%), inserts = erases per frame swept from 1 to 100.
-void Figure(int figure, const Config& base) {
+//  9: 5% moving (150 of 3000), inserts = erases per frame swept from 1 to 100.
+void Figure(int figure, uint32_t objects, const Config& base) {
   int frames = base.frames > 0 ? base.frames : 200;
   std::vector<SceneParams> points;
   if (figure == 8) {
     for (double f : {0.05, 0.1, 0.2, 0.3, 0.4, 0.5, 0.6, 0.7, 0.8, 0.9, 1.0}) {
       SceneParams p;
-      p.n = 3000;
-      p.moving = static_cast<uint32_t>(f * p.n + 0.5);
+      p.n = objects;
+      p.moving = std::max<uint32_t>(1, static_cast<uint32_t>(f * p.n + 0.5));
       p.churn = 1;
       points.push_back(p);
     }
   } else {
     for (uint32_t c : {1u, 2u, 5u, 10u, 15u, 20u, 30u, 40u, 50u, 60u, 80u, 100u}) {
       SceneParams p;
-      p.n = 3000;
-      p.moving = 150;
-      p.churn = c;
+      p.n = objects;
+      p.moving = std::max<uint32_t>(1, objects / 20);
+      p.churn = std::min(c, objects / 2);
       points.push_back(p);
     }
   }
@@ -313,8 +313,12 @@ int main(int argc, char** argv) {
       ->check(CLI::Range(0, 100000));
   app.add_flag("--threshold-sweep", sweep, "measure local vs global sort over moving fractions");
   int figure = 0;
+  uint32_t figure_objects = 3000;
   app.add_option("--figure", figure, "the paper's figure 8 or 9 (single cell, every cell variant)")
       ->check(CLI::IsMember({8, 9}));
+  app.add_option("--figure-objects", figure_objects, "objects of the figure's scene (paper: 3000)")
+      ->check(CLI::Range(20u, 10000000u))
+      ->capture_default_str();
   app.add_option("--sweep-sizes", sweep_sizes, "object counts of the threshold sweep")
       ->capture_default_str();
   CLI11_PARSE(app, argc, argv);
@@ -325,7 +329,7 @@ int main(int argc, char** argv) {
     return 0;
   }
   if (figure != 0) {
-    Figure(figure, cfg);
+    Figure(figure, figure_objects, cfg);
     return 0;
   }
   if (!custom.empty()) {
