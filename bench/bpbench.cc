@@ -40,7 +40,7 @@ struct Config {
   std::string variant;  // a label for the figure sweeps
   uint32_t chunk = 32;
   uint32_t presorted_min = bp::SegmentedSapOptions().presorted_min;
-  double global_fraction = bp::SegmentedSapOptions().global_sort_fraction;
+  double global_fraction = -1;  // < 0: the engine's default
   int repeats = 5;
   int frames = 0;  // 0: the scenario's own
   bool progress = false;
@@ -79,17 +79,21 @@ bp::SegmentedSapOptions SapOptions(const Config& cfg) {
   bp::SegmentedSapOptions options;
   options.chunk_capacity = cfg.chunk;
   options.presorted_min = cfg.presorted_min;
-  options.global_sort_fraction = cfg.sort == "local"    ? 1e300
-                                 : cfg.sort == "global" ? 0.0
-                                                        : cfg.global_fraction;
+  if (cfg.sort == "local") options.global_sort_fraction = 1e300;
+  if (cfg.sort == "global") options.global_sort_fraction = 0.0;
+  if (cfg.sort == "auto" && cfg.global_fraction >= 0) {
+    options.global_sort_fraction = cfg.global_fraction;
+  }
   return options;
 }
 
 bp::BatchSapOptions BatchOptions(const Config& cfg) {
   bp::BatchSapOptions options;
-  options.global_sort_fraction = cfg.sort == "local"    ? 1e300
-                                 : cfg.sort == "global" ? 0.0
-                                                        : cfg.global_fraction;
+  if (cfg.sort == "local") options.global_sort_fraction = 1e300;
+  if (cfg.sort == "global") options.global_sort_fraction = 0.0;
+  if (cfg.sort == "auto" && cfg.global_fraction >= 0) {
+    options.global_sort_fraction = cfg.global_fraction;
+  }
   return options;
 }
 
@@ -166,7 +170,9 @@ void PrintJson(const std::string& scenario, const SceneParams& p, int frames, co
     o << ",\"chunk\":" << cfg.chunk << ",\"presorted_min\":" << cfg.presorted_min;
   }
   if (cfg.engine != "brute_force") {
-    o << ",\"sort\":\"" << cfg.sort << "\",\"global_fraction\":" << cfg.global_fraction;
+    double fraction = cfg.engine == "batch_sap" ? BatchOptions(cfg).global_sort_fraction
+                                                : SapOptions(cfg).global_sort_fraction;
+    o << ",\"sort\":\"" << cfg.sort << "\",\"global_fraction\":" << fraction;
   }
   if (!cfg.variant.empty()) o << ",\"variant\":\"" << cfg.variant << "\"";
   o << extra << ",\"median_ms\":" << Quantile(r.run_medians, 0.5)
@@ -297,7 +303,7 @@ int main(int argc, char** argv) {
       ->check(CLI::IsMember({"auto", "local", "global"}))
       ->capture_default_str();
   app.add_option("--global-fraction", cfg.global_fraction,
-                 "auto sort: global when moved > fraction * objects")
+                 "auto sort: global when moved > fraction * objects (default: the engine's)")
       ->capture_default_str();
   app.add_option("--presorted-min", cfg.presorted_min,
                  "segmented_sap: inserts + erases from which a query integrates them presorted, "

@@ -3,6 +3,7 @@
 // erase of one key between two queries. Every query is compared with the model oracle.
 #include <cstdint>
 #include <random>
+#include <string>
 #include <utility>
 #include <vector>
 
@@ -101,6 +102,29 @@ TEST_F(BatchSapTest, FloatingArrayGrowsPassesBackwardAndClosesTheGap) {
   EXPECT_EQ(engine_.Size(), 135u);
 }
 
+// Passes whose gap fits the insertions exactly: forward with |I| free slots in front, then
+// backward with |I| free slots behind.
+TEST_F(BatchSapTest, GapsThatFitExactly) {
+  for (uint64_t k = 0; k < 100; ++k) Insert(k);
+  QueryAndCompare();  // [200, 400) of 400
+  for (uint64_t k = 100; k < 200; ++k) Insert(k);
+  QueryAndCompare();  // 200 new extrema, 200 free in front
+  Layout l = Axis0();
+  EXPECT_EQ(core().forward_passes(), 3u);
+  EXPECT_EQ(l.begin, 0u);
+  EXPECT_EQ(l.end, 400u);
+  for (uint64_t k = 0; k < 100; k += 2) Erase(k);
+  QueryAndCompare();  // in place: [0, 300)
+  for (uint64_t k = 300; k < 350; ++k) Insert(k);
+  QueryAndCompare();  // 100 new extrema, none free in front, 100 behind
+  l = Axis0();
+  EXPECT_EQ(core().growths(), 3u);
+  EXPECT_EQ(core().backward_passes(), 6u);
+  EXPECT_EQ(l.begin, 0u);
+  EXPECT_EQ(l.end, 400u);
+  EXPECT_EQ(l.capacity, 400u);
+}
+
 // Steady churn with movement alternates the pass directions inside a bounded allocation.
 TEST_F(BatchSapTest, SteadyChurnStaysInABoundedAllocation) {
   uint64_t next = 0;
@@ -140,6 +164,16 @@ TEST_F(BatchSapTest, MassEraseCompactsTheAllocation) {
   Layout l = Axis0();
   EXPECT_EQ(l.end - l.begin, 20u);
   EXPECT_LE(l.capacity, 4u * 20 + 4096);
+  // The compacted list (no gap on either side) takes more batches and moves.
+  for (int frame = 0; frame < 5 && !HasFailure(); ++frame) {
+    Erase(static_cast<uint64_t>(frame));
+    for (uint64_t k = 0; k < 40; ++k) Insert(10000 + 100 * static_cast<uint64_t>(frame) + k);
+    Box<3, float> b = RandomBox();
+    ASSERT_TRUE(engine_.Update(9, b).ok());
+    model_.boxes()[9] = b;
+    QueryAndCompare();
+  }
+  EXPECT_EQ(engine_.Size(), 10u - 5 + 200);
 }
 
 TEST_F(BatchSapTest, EmptyBatchesChangeNothing) {
@@ -217,6 +251,72 @@ TEST_F(BatchSapTest, MovesAloneSortLocallyOrGlobally) {
   QueryAndCompare();
   EXPECT_TRUE(engine_.GetStats().global_sort);
   EXPECT_GT(engine_.GetStats().swaps, 0u);
+}
+
+// One axis (the first axis is the last: removals and insertions in the same pass) and four, for
+// integer and floating coordinates, local and global sorting, against brute force.
+template <int K, class T>
+void RandomFramesAgainstBruteForce(double global_fraction, uint64_t seed) {
+  SCOPED_TRACE("K=" + std::to_string(K) + " seed=" + std::to_string(seed) +
+               " fraction=" + std::to_string(global_fraction));
+  BatchSapOptions options;
+  options.global_sort_fraction = global_fraction;
+  BatchSap<K, T> engine(options);
+  BruteForce<K, T> oracle;
+  RecordingSink<uint64_t> got, want;
+  std::mt19937_64 rng(seed);
+  auto random_box = [&] {
+    Box<K, T> b;
+    for (size_t a = 0; a < static_cast<size_t>(K); ++a) {
+      b.lo[a] = static_cast<T>(rng() % 30);
+      b.hi[a] = static_cast<T>(b.lo[a] + static_cast<T>(rng() % 6));
+    }
+    return b;
+  };
+  std::vector<uint64_t> live;
+  uint64_t next = 0;
+  for (int frame = 0; frame < 60; ++frame) {
+    int ops = frame == 0 ? 80 : static_cast<int>(rng() % 20);
+    for (int i = 0; i < ops; ++i) {
+      uint64_t r = rng() % 10;
+      if (live.empty() || r < 3) {
+        Box<K, T> b = random_box();
+        ASSERT_TRUE(engine.Insert(next, b).ok());
+        ASSERT_TRUE(oracle.Insert(next, b).ok());
+        live.push_back(next++);
+      } else if (r < 5) {
+        size_t j = rng() % live.size();
+        ASSERT_TRUE(engine.Erase(live[j]).ok());
+        ASSERT_TRUE(oracle.Erase(live[j]).ok());
+        live[j] = live.back();
+        live.pop_back();
+      } else {
+        Box<K, T> b = random_box();
+        uint64_t key = live[rng() % live.size()];
+        ASSERT_TRUE(engine.Update(key, b).ok());
+        ASSERT_TRUE(oracle.Update(key, b).ok());
+      }
+    }
+    got.Clear();
+    want.Clear();
+    engine.Query(got);
+    oracle.Query(want);
+    ASSERT_EQ(got.collides, want.collides) << "frame " << frame;
+    ASSERT_EQ(got.uncollides, want.uncollides) << "frame " << frame;
+    ASSERT_TRUE(engine.Validate().ok()) << engine.Validate().ToString();
+  }
+}
+
+TEST(BatchSapAxes, OneAndFourAxes) {
+  for (uint64_t seed = 1; seed <= 4; ++seed) {
+    for (double fraction : {0.0, 0.07, 1e300}) {
+      RandomFramesAgainstBruteForce<1, int32_t>(fraction, seed);
+      RandomFramesAgainstBruteForce<1, float>(fraction, seed);
+      RandomFramesAgainstBruteForce<4, float>(fraction, seed);
+      RandomFramesAgainstBruteForce<4, uint32_t>(fraction, seed);
+      if (::testing::Test::HasFailure()) return;
+    }
+  }
 }
 
 }  // namespace

@@ -70,7 +70,8 @@ class BatchSapCore {
   static constexpr size_t kAxes = static_cast<size_t>(K);
   using Coord = T;
   static constexpr const char* kName = "batch_sap";
-  // Indices are 32 bits: the allocation holds at most 2 * objects + 3 * records extrema.
+  // Indices are 32 bits. After a query the allocation holds at most 4 x its list + 4096 slots
+  // (compaction), during one at most that plus 2 x the insertion records: below 2^32 here.
   static constexpr size_t kMaxHandles = size_t{1} << 28;
   using Options = BatchSapOptions;
 
@@ -270,6 +271,7 @@ class BatchSapCore {
       if (ax.buf.size() - ax.end < m) {
         // Room for this pass behind the list, and a gap in front afterwards for the next one.
         ++growths_;
+        ax.buf.reserve(ax.end + 2 * m);  // exactly: capacity is what the compaction rule sees
         ax.buf.resize(ax.end + 2 * m);
       }
       ++backward_passes_;
