@@ -1,6 +1,7 @@
 // The validators must notice broken invariants: corrupt a SegmentedSap core through its test
-// peer (checkpoints, sort order, candidate set, chunk links) and expect an Internal status that
-// names the problem; undo the corruption and expect ok again.
+// peer (checkpoints, sort order, candidate set, chunk links), or a BatchSap core (sort order,
+// positions, stale coordinates, candidate set, a record left pending), and expect an Internal
+// status that names the problem; undo the corruption and expect ok again.
 #include <cstdint>
 #include <string>
 #include <utility>
@@ -8,6 +9,7 @@
 
 #include <gtest/gtest.h>
 
+#include "bp/batch_sap.h"
 #include "bp/segmented_sap.h"
 
 namespace bp::detail {
@@ -35,6 +37,24 @@ struct SegmentedSapTestPeer {
     auto& ax = core.axes_[axis];
     return ax.chunks[ax.chunks[ax.head].next].prev;
   }
+};
+
+struct BatchSapTestPeer {
+  using Core = BatchSapCore<2, float>;
+  static std::pair<float, uint32_t> First(Core& core, size_t axis) {
+    auto& ax = core.axes_[axis];
+    return {ax.buf[ax.begin].value, ax.buf[ax.begin].ref};
+  }
+  static void SetFirstValue(Core& core, size_t axis, float v) {
+    auto& ax = core.axes_[axis];
+    ax.buf[ax.begin].value = v;
+  }
+  static uint32_t& PosOfFirst(Core& core, size_t axis) {
+    auto& ax = core.axes_[axis];
+    return ax.pos[ax.buf[ax.begin].ref];
+  }
+  static uint8_t& State(Core& core, uint32_t h) { return core.state_[h]; }
+  static PairTracker& Tracker(Core& core) { return core.tracker_; }
 };
 
 namespace {
@@ -100,6 +120,66 @@ TEST(SegmentedSapValidate, NoticesBrokenLinks) {
   prev = saved + 1;
   ExpectBroken(core, "prev link");
   prev = saved;
+  EXPECT_TRUE(core.Validate().ok());
+}
+
+BatchSapCore<2, float> MakeBatchCore() {
+  BatchSapCore<2, float> core;
+  std::vector<HandleBox<2, float>> inserts;
+  for (uint32_t h = 0; h < 40; ++h) {
+    float x = static_cast<float>(h % 10);
+    float y = static_cast<float>(h / 10);
+    inserts.push_back({h, Box<2, float>{{x, y}, {x + 2.5f, y + 0.5f}}});
+  }
+  core.Apply({}, {}, inserts);
+  return core;
+}
+
+void ExpectBatchBroken(const BatchSapCore<2, float>& core, const std::string& needle) {
+  Status s = core.Validate();
+  EXPECT_EQ(s.code(), StatusCode::kInternal);
+  EXPECT_NE(s.message().find(needle), std::string::npos) << s.message();
+}
+
+TEST(BatchSapValidate, NoticesStaleCoordinatesAndUnsortedLists) {
+  auto core = MakeBatchCore();
+  ASSERT_TRUE(core.Validate().ok());
+  using Peer = BatchSapTestPeer;
+  float v = Peer::First(core, 1).first;
+  Peer::SetFirstValue(core, 1, v - 1);  // still sorted, but not the box's coordinate
+  ExpectBatchBroken(core, "stale coordinate");
+  Peer::SetFirstValue(core, 1, v + 100);
+  ExpectBatchBroken(core, "unsorted");
+  Peer::SetFirstValue(core, 1, v);
+  EXPECT_TRUE(core.Validate().ok());
+}
+
+TEST(BatchSapValidate, NoticesBadPositions) {
+  auto core = MakeBatchCore();
+  using Peer = BatchSapTestPeer;
+  Peer::PosOfFirst(core, 0) += 1;
+  ExpectBatchBroken(core, "pos points astray");
+  Peer::PosOfFirst(core, 0) -= 1;
+  EXPECT_TRUE(core.Validate().ok());
+}
+
+TEST(BatchSapValidate, NoticesMissingSpuriousAndPendingState) {
+  auto core = MakeBatchCore();
+  using Peer = BatchSapTestPeer;
+  PairTracker& tracker = Peer::Tracker(core);
+  ASSERT_TRUE(tracker.Contains(0, 1));
+  tracker.Remove(0, 1);
+  ExpectBatchBroken(core, "missing");
+  tracker.Add(0, 1);
+  ASSERT_FALSE(tracker.Contains(0, 39));
+  tracker.Add(0, 39);
+  ExpectBatchBroken(core, "spurious");
+  tracker.Remove(0, 39);
+  EXPECT_TRUE(core.Validate().ok());
+  uint8_t live = Peer::State(core, 5);
+  Peer::State(core, 5) = live + 1;  // a record left pending
+  ExpectBatchBroken(core, "pending");
+  Peer::State(core, 5) = live;
   EXPECT_TRUE(core.Validate().ok());
 }
 

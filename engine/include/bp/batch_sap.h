@@ -162,6 +162,8 @@ class BatchSapCore {
   size_t forward_passes() const { return forward_passes_; }
   size_t backward_passes() const { return backward_passes_; }
   size_t growths() const { return growths_; }
+  /// White-box tests corrupt internals through this peer to prove Validate() notices.
+  friend struct BatchSapTestPeer;
 
  private:
   struct Ext {
