@@ -75,25 +75,24 @@ long PeakRssKb() {
   return usage.ru_maxrss;
 }
 
+// --sort and --global-fraction, on either cell's global_sort_fraction (default: the cell's).
+void SetSortFraction(const Config& cfg, double* fraction) {
+  if (cfg.sort == "local") *fraction = 1e300;
+  if (cfg.sort == "global") *fraction = 0.0;
+  if (cfg.sort == "auto" && cfg.global_fraction >= 0) *fraction = cfg.global_fraction;
+}
+
 bp::SegmentedSapOptions SapOptions(const Config& cfg) {
   bp::SegmentedSapOptions options;
   options.chunk_capacity = cfg.chunk;
   options.presorted_min = cfg.presorted_min;
-  if (cfg.sort == "local") options.global_sort_fraction = 1e300;
-  if (cfg.sort == "global") options.global_sort_fraction = 0.0;
-  if (cfg.sort == "auto" && cfg.global_fraction >= 0) {
-    options.global_sort_fraction = cfg.global_fraction;
-  }
+  SetSortFraction(cfg, &options.global_sort_fraction);
   return options;
 }
 
 bp::BatchSapOptions BatchOptions(const Config& cfg) {
   bp::BatchSapOptions options;
-  if (cfg.sort == "local") options.global_sort_fraction = 1e300;
-  if (cfg.sort == "global") options.global_sort_fraction = 0.0;
-  if (cfg.sort == "auto" && cfg.global_fraction >= 0) {
-    options.global_sort_fraction = cfg.global_fraction;
-  }
+  SetSortFraction(cfg, &options.global_sort_fraction);
   return options;
 }
 

@@ -6,8 +6,8 @@
 #include <unordered_map>
 #include <unordered_set>
 
-#include "bp/brute_force.h"
 #include "bp/batch_sap.h"
+#include "bp/brute_force.h"
 #include "bp/segmented_sap.h"
 
 namespace bp::service {
@@ -326,8 +326,9 @@ Status Make(const EngineConfig& config, uint64_t max_objects, std::unique_ptr<En
   } else if (config.algorithm == "batch_sap") {
     engine = std::make_unique<BatchSap<K, T, uint64_t>>();
   } else {
-    return Status(StatusCode::kInvalidArgument, "unknown engine algorithm '" + config.algorithm +
-                                                    "' (known: brute_force, segmented_sap, batch_sap)");
+    return Status(StatusCode::kInvalidArgument,
+                  "unknown engine algorithm '" + config.algorithm +
+                      "' (known: brute_force, segmented_sap, batch_sap)");
   }
   *out = std::make_unique<TypedHost<K, T>>(std::move(engine), max_objects);
   return Status::Ok();

@@ -12,9 +12,9 @@
 #include <utility>
 #include <vector>
 
+#include "bp/batch_sap.h"
 #include "bp/box.h"
 #include "bp/broadphase.h"
-#include "bp/batch_sap.h"
 #include "bp/brute_force.h"
 #include "bp/segmented_sap.h"
 

@@ -61,21 +61,27 @@ namespace {
 
 using Core = SegmentedSapCore<2, float>;
 
-Core MakeCore() {
-  SegmentedSapOptions options;
-  options.chunk_capacity = 4;
-  Core core(options);
+// 40 boxes on a 10 x 4 lattice, each overlapping its neighbours along x.
+std::vector<HandleBox<2, float>> LatticeInserts() {
   std::vector<HandleBox<2, float>> inserts;
   for (uint32_t h = 0; h < 40; ++h) {
     float x = static_cast<float>(h % 10);
     float y = static_cast<float>(h / 10);
     inserts.push_back({h, Box<2, float>{{x, y}, {x + 2.5f, y + 0.5f}}});
   }
-  core.Apply({}, {}, inserts);
+  return inserts;
+}
+
+Core MakeCore() {
+  SegmentedSapOptions options;
+  options.chunk_capacity = 4;
+  Core core(options);
+  core.Apply({}, {}, LatticeInserts());
   return core;
 }
 
-void ExpectBroken(const Core& core, const std::string& needle) {
+template <class AnyCore>
+void ExpectBroken(const AnyCore& core, const std::string& needle) {
   Status s = core.Validate();
   EXPECT_EQ(s.code(), StatusCode::kInternal);
   EXPECT_NE(s.message().find(needle), std::string::npos) << s.message();
@@ -125,20 +131,8 @@ TEST(SegmentedSapValidate, NoticesBrokenLinks) {
 
 BatchSapCore<2, float> MakeBatchCore() {
   BatchSapCore<2, float> core;
-  std::vector<HandleBox<2, float>> inserts;
-  for (uint32_t h = 0; h < 40; ++h) {
-    float x = static_cast<float>(h % 10);
-    float y = static_cast<float>(h / 10);
-    inserts.push_back({h, Box<2, float>{{x, y}, {x + 2.5f, y + 0.5f}}});
-  }
-  core.Apply({}, {}, inserts);
+  core.Apply({}, {}, LatticeInserts());
   return core;
-}
-
-void ExpectBatchBroken(const BatchSapCore<2, float>& core, const std::string& needle) {
-  Status s = core.Validate();
-  EXPECT_EQ(s.code(), StatusCode::kInternal);
-  EXPECT_NE(s.message().find(needle), std::string::npos) << s.message();
 }
 
 TEST(BatchSapValidate, NoticesStaleCoordinatesAndUnsortedLists) {
@@ -147,9 +141,9 @@ TEST(BatchSapValidate, NoticesStaleCoordinatesAndUnsortedLists) {
   using Peer = BatchSapTestPeer;
   float v = Peer::First(core, 1).first;
   Peer::SetFirstValue(core, 1, v - 1);  // still sorted, but not the box's coordinate
-  ExpectBatchBroken(core, "stale coordinate");
+  ExpectBroken(core, "stale coordinate");
   Peer::SetFirstValue(core, 1, v + 100);
-  ExpectBatchBroken(core, "unsorted");
+  ExpectBroken(core, "unsorted");
   Peer::SetFirstValue(core, 1, v);
   EXPECT_TRUE(core.Validate().ok());
 }
@@ -158,7 +152,7 @@ TEST(BatchSapValidate, NoticesBadPositions) {
   auto core = MakeBatchCore();
   using Peer = BatchSapTestPeer;
   Peer::PosOfFirst(core, 0) += 1;
-  ExpectBatchBroken(core, "pos points astray");
+  ExpectBroken(core, "pos points astray");
   Peer::PosOfFirst(core, 0) -= 1;
   EXPECT_TRUE(core.Validate().ok());
 }
@@ -169,16 +163,16 @@ TEST(BatchSapValidate, NoticesMissingSpuriousAndPendingState) {
   PairTracker& tracker = Peer::Tracker(core);
   ASSERT_TRUE(tracker.Contains(0, 1));
   tracker.Remove(0, 1);
-  ExpectBatchBroken(core, "missing");
+  ExpectBroken(core, "missing");
   tracker.Add(0, 1);
   ASSERT_FALSE(tracker.Contains(0, 39));
   tracker.Add(0, 39);
-  ExpectBatchBroken(core, "spurious");
+  ExpectBroken(core, "spurious");
   tracker.Remove(0, 39);
   EXPECT_TRUE(core.Validate().ok());
   uint8_t live = Peer::State(core, 5);
   Peer::State(core, 5) = live + 1;  // a record left pending
-  ExpectBatchBroken(core, "pending");
+  ExpectBroken(core, "pending");
   Peer::State(core, 5) = live;
   EXPECT_TRUE(core.Validate().ok());
 }

@@ -81,11 +81,9 @@ class BatchSapCore {
              std::span<const HandleBox<K, T>> inserts) {
     swaps_ = 0;
     tests_ = 0;
-    size_t live_before = live_;
     global_ = !erases.empty() || !inserts.empty() ||
               (!updates.empty() && static_cast<double>(updates.size()) >
-                                       options_.global_sort_fraction *
-                                           static_cast<double>(live_before));
+                                       options_.global_sort_fraction * static_cast<double>(live_));
     if (!global_) {
       for (const auto& [h, box] : updates) LocalUpdate(h, box);
       return;
