@@ -289,6 +289,15 @@ class BatchSapAlwaysLocal : public DifferentialTest<C> {};
 template <class C>
 class BatchSapAlwaysGlobal : public DifferentialTest<C> {};
 
+template <class C>
+class GridSegmentedDiff : public DifferentialTest<C> {};
+template <class C>
+class GridSegmentedTinyCells : public DifferentialTest<C> {};
+template <class C>
+class GridBatchDiff : public DifferentialTest<C> {};
+template <class C>
+class GridBatchTinyCells : public DifferentialTest<C> {};
+
 using BruteForceShapes = AllShapes<MakeBruteForce>;
 using SapShapes = AllShapes<MakeSegmentedSap<32, 7>>;  // the default options
 // Local sort and one-at-a-time inserts and erases only.
@@ -314,6 +323,17 @@ using SapTinyPresortedShapes = AllShapes<MakeSegmentedSap<4, -1, 0, 1>>;
 TYPED_TEST_SUITE(SegmentedSapPresorted, SapPresortedShapes);
 TYPED_TEST_SUITE(SegmentedSapTinyChunksPresorted, SapTinyPresortedShapes);
 
+// The grid over either cell: automatic cell size; and cells of size 3 (objects span many cells,
+// migrate on most moves, and the wider ones are kept as large objects: at most 8 or 64 cells).
+using GridSegmentedShapes = AllShapes<MakeGrid<false, 0>>;
+using GridSegmentedTinyShapes = AllShapes<MakeGrid<false, 30, 64>>;
+using GridBatchShapes = AllShapes<MakeGrid<true, 0>>;
+using GridBatchTinyShapes = AllShapes<MakeGrid<true, 30, 8>>;
+TYPED_TEST_SUITE(GridSegmentedDiff, GridSegmentedShapes);
+TYPED_TEST_SUITE(GridSegmentedTinyCells, GridSegmentedTinyShapes);
+TYPED_TEST_SUITE(GridBatchDiff, GridBatchShapes);
+TYPED_TEST_SUITE(GridBatchTinyCells, GridBatchTinyShapes);
+
 #define BP_DIFFERENTIAL_TESTS(Suite)                                                 \
   TYPED_TEST(Suite, RandomOperationsMatchOracle) {                                   \
     for (const Scenario& sc : kScenarios) {                                          \
@@ -333,6 +353,10 @@ BP_DIFFERENTIAL_TESTS(SegmentedSapTinyChunksPresorted)
 BP_DIFFERENTIAL_TESTS(BatchSapDiff)
 BP_DIFFERENTIAL_TESTS(BatchSapAlwaysLocal)
 BP_DIFFERENTIAL_TESTS(BatchSapAlwaysGlobal)
+BP_DIFFERENTIAL_TESTS(GridSegmentedDiff)
+BP_DIFFERENTIAL_TESTS(GridSegmentedTinyCells)
+BP_DIFFERENTIAL_TESTS(GridBatchDiff)
+BP_DIFFERENTIAL_TESTS(GridBatchTinyCells)
 
 }  // namespace
 }  // namespace bp::test

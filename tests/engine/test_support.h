@@ -16,6 +16,7 @@
 #include "bp/box.h"
 #include "bp/broadphase.h"
 #include "bp/brute_force.h"
+#include "bp/grid.h"
 #include "bp/segmented_sap.h"
 
 namespace bp::test {
@@ -123,6 +124,32 @@ struct MakeBatchSap {
     return std::make_unique<BatchSap<K, T>>(options);
   }
   static std::string Name() { return "BatchSap_g" + std::to_string(kGlobalPercent); }
+};
+
+/// A grid over SegmentedSap (kBatch false) or BatchSap cells with cell size kCellTenths / 10
+/// (0: automatic) and at most kMaxCells cells per object before it counts as large.
+template <bool kBatch, int kCellTenths, uint32_t kMaxCells = 16>
+struct MakeGrid {
+  template <int K, class T>
+  static std::unique_ptr<Broadphase<K, T>> Create() {
+    auto set = [](auto& options) {
+      options.cell_size = kCellTenths / 10.0;
+      options.max_cells_per_object = kMaxCells;
+    };
+    if constexpr (kBatch) {
+      GridBatchSapOptions options;
+      set(options);
+      return std::make_unique<GridBatchSap<K, T>>(options);
+    } else {
+      GridSegmentedSapOptions options;
+      set(options);
+      return std::make_unique<GridSegmentedSap<K, T>>(options);
+    }
+  }
+  static std::string Name() {
+    return std::string(kBatch ? "GridBatchSap" : "GridSegmentedSap") + "_s" +
+           std::to_string(kCellTenths) + "_m" + std::to_string(kMaxCells);
+  }
 };
 
 /// Seeds to run: BP_TEST_SEED alone if set, else `count` seeds derived from `base`, or

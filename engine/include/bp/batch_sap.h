@@ -70,6 +70,7 @@ class BatchSapCore {
   static constexpr size_t kAxes = static_cast<size_t>(K);
   using Coord = T;
   static constexpr const char* kName = "batch_sap";
+  static constexpr const char* kGridName = "grid_batch_sap";  // as the cell of bp::Grid
   // Indices are 32 bits. After a query the allocation holds at most 4 x its list + 4096 slots
   // (compaction), during one at most that plus 2 x the insertion records: below 2^32 here.
   static constexpr size_t kMaxHandles = size_t{1} << 28;

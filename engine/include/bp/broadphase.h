@@ -52,6 +52,10 @@ struct Stats {
   bool global_sort = false;  ///< the last query sorted globally (not per moved object)
   bool rebuilt = false;      ///< the last query rebuilt its structures from scratch (bulk load)
   size_t chunks = 0;         ///< chunks over all axes (segmented lists only)
+  size_t cells = 0;          ///< cells in use (grid only)
+  size_t cells_queried = 0;  ///< cells the last query applied operations to (grid only)
+  size_t large_objects = 0;  ///< objects kept out of the cells for their size (grid only)
+  double cell_size = 0;      ///< the grid's cell edge (grid only)
 };
 
 /// The interface of every broadphase: K axes, coordinates T, client keys Key.

@@ -81,6 +81,7 @@ class SegmentedSapCore {
   static constexpr size_t kAxes = static_cast<size_t>(K);
   using Coord = T;
   static constexpr const char* kName = "segmented_sap";
+  static constexpr const char* kGridName = "grid_segmented_sap";  // as the cell of bp::Grid
   // Positions are chunk << shift | slot in 32 bits. Merging keeps adjacent chunks above half a
   // chunk together, so chunks <= 4 * extrema / capacity + 1 and positions < 8 * handles + cap:
   // 2^28 handles keep every position (and every ref, handle << 1 | is_max) in range.

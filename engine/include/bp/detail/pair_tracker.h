@@ -23,15 +23,19 @@ inline uint32_t PairSecond(uint64_t p) { return static_cast<uint32_t>(p); }
 
 class PairTracker {
  public:
-  /// Records that a and b overlap (idempotent).
-  void Add(uint32_t a, uint32_t b) {
+  /// Records that a and b overlap (idempotent); true if they did not before.
+  bool Add(uint32_t a, uint32_t b) {
     uint64_t p = HandlePair(a, b);
-    if (overlaps_.Insert(p)) Toggle(p);
+    if (!overlaps_.Insert(p)) return false;
+    Toggle(p);
+    return true;
   }
-  /// Records that a and b do not overlap (idempotent).
-  void Remove(uint32_t a, uint32_t b) {
+  /// Records that a and b do not overlap (idempotent); true if they did before.
+  bool Remove(uint32_t a, uint32_t b) {
     uint64_t p = HandlePair(a, b);
-    if (overlaps_.Erase(p)) Toggle(p);
+    if (!overlaps_.Erase(p)) return false;
+    Toggle(p);
+    return true;
   }
   bool Contains(uint32_t a, uint32_t b) const { return overlaps_.Contains(HandlePair(a, b)); }
 

@@ -1,0 +1,975 @@
+// bp::Grid: the superstructure of Tracy, Buss and Woods (IEEE VR 2009, sections 3.1 and 3.3): a
+// uniform grid whose cells are sweep-and-prune instances (either cell core: SegmentedSap or
+// BatchSap), with a witness-count table that turns per-cell overlap changes into exactly one
+// collide and one uncollide per pair.
+//
+// Cells are hashed by their integer coordinates (the world is unbounded), created when an object
+// first enters them and recycled when their last object leaves. A cell coordinate is
+// floor(x / cell_size) clamped to [-2^(b-1), 2^(b-1)) with b = 63 / K bits, so coordinates far
+// from the origin land in the edge cells instead of overflowing. Any monotone map from
+// coordinates to cells keeps the grid exact: two boxes that overlap share a cell on every axis.
+//
+// An object covering at most `max_cells_per_object` cells lives in each of them (a cell knows it
+// by a local handle); a move within the same cells is an update in each, a move across cells is
+// an insert into the new cells, an update in the kept ones and an erase from the old ones.
+// Bigger objects are not copied into cells: they form the large set, registered in the lists of
+// the existing cells their range covers. A changed small object is tested against the large
+// objects listed in its old and new cells; a changed large object is rescanned against the
+// objects of the cells it covers and against the other large objects. Each large object keeps
+// its witnessed partners (for large pairs, both sides hold each other and count once).
+//
+// Every cell reports the changes of its own overlap set; the grid counts, per pair, the cells
+// (and the large set) that witness it. A pair is in the grid's overlap set iff its count is at
+// least one; the count's transitions between 0 and 1 are the events (the tracker cancels a pair
+// that leaves one cell and enters another in the same query). Work per query is O(u + e) plus
+// the cells' own work: only cells with buffered operations are applied.
+//
+// The cell size is either given or chosen from the objects (about `objects_per_cell` objects per
+// cell over the bounds of the box centres); it is chosen again, and every cell rebuilt, when the
+// live count has changed fourfold and the best size differs by more than a factor of two.
+//
+// Thread safety: none (see bp/broadphase.h).
+// Invariants (checked by Validate):
+//  1. A live small object's refs list, in row-major order over its cell range, one (cell, local)
+//     per cell; cells_[cell] has that coordinate and global[local] is the object.
+//  2. A cell in use is in the hash under its coordinate, holds members > 0 live objects (its
+//     core's live count), and lists exactly the large objects whose range covers it.
+//  3. A large object's partners are exactly the live objects overlapping it; large partners
+//     hold each other.
+//  4. For every pair, the cells whose core holds it plus the large set (once) number
+//     1 + extra_[pair] when the tracker holds it (extra_ absent means 1), and 0 otherwise.
+//  5. The tracker's overlap set equals the overlapping pairs of the live boxes.
+#pragma once
+
+#include <algorithm>
+#include <array>
+#include <bit>
+#include <cmath>
+#include <cstdint>
+#include <limits>
+#include <memory>
+#include <span>
+#include <string>
+#include <vector>
+
+#include "bp/batch_sap.h"
+#include "bp/box.h"
+#include "bp/broadphase.h"
+#include "bp/detail/assert.h"
+#include "bp/detail/flat_map.h"
+#include "bp/detail/flat_set.h"
+#include "bp/detail/keyed_engine.h"
+#include "bp/detail/pair_tracker.h"
+#include "bp/detail/sweep.h"
+#include "bp/segmented_sap.h"
+
+namespace bp {
+
+/// Tuning of the grid; CellOptions are the options of its cell engine.
+template <class CellOptions>
+struct GridOptions {
+  /// Edge of a cell on every axis; 0 chooses it from the objects and adapts it as they grow.
+  double cell_size = 0;
+  /// The automatic size aims at this many objects per cell (paper: about 300, uniform scenes).
+  double objects_per_cell = 300;
+  /// An object whose box would cover more cells than this is kept in the large set instead.
+  uint32_t max_cells_per_object = 16;
+  /// Options of every cell.
+  CellOptions cell{};
+};
+
+namespace detail {
+
+template <class Cell>
+class GridCore {
+ public:
+  static constexpr int kDim = Cell::kDim;
+  static constexpr size_t kAxes = static_cast<size_t>(kDim);
+  using Coord = typename Cell::Coord;
+  using BoxType = Box<kDim, Coord>;
+  static constexpr const char* kName = Cell::kGridName;
+  static constexpr size_t kMaxHandles = size_t{1} << 28;
+  using Options = GridOptions<typename Cell::Options>;
+
+  explicit GridCore(const Options& options = Options()) : options_(options) {
+    options_.max_cells_per_object = std::max<uint32_t>(options_.max_cells_per_object, 1);
+    if (!(options_.objects_per_cell >= 1)) options_.objects_per_cell = 1;
+    if (options_.cell_size > 0 && std::isfinite(options_.cell_size)) SetCellSize(options_.cell_size);
+  }
+
+  void Apply(std::span<const uint32_t> erases, std::span<const HandleBox<kDim, Coord>> updates,
+             std::span<const HandleBox<kDim, Coord>> inserts) {
+    swaps_ = tests_ = cells_queried_ = 0;
+    global_ = rebuilt_ = false;
+    if (inv_size_ == 0 && !inserts.empty()) {
+      // First objects: choose the automatic size from them.
+      SetCellSize(IdealCellSize(inserts.size(), [&](auto&& f) {
+        for (const auto& hb : inserts) f(hb.box);
+      }));
+      sized_for_ = inserts.size();
+    }
+    for (uint32_t h : erases) EraseObject(h);
+    for (const auto& [h, box] : updates) UpdateObject(h, box);
+    for (const auto& [h, box] : inserts) InsertObject(h, box);
+    for (uint32_t l : changed_large_) {
+      large_[l].changed = false;
+      if (large_[l].handle != kNone) Rescan(l);
+    }
+    changed_large_.clear();
+    QueryCells();
+    live_ = live_ + inserts.size() - erases.size();
+    MaybeResize();
+  }
+
+  PairTracker& tracker() { return tracker_; }
+  const PairTracker& tracker() const { return tracker_; }
+  size_t live() const { return live_; }
+
+  void FillStats(Stats* out) const {
+    out->swaps = swaps_;
+    out->overlap_tests = tests_;
+    out->global_sort = global_;
+    out->rebuilt = rebuilt_;
+    out->cells = cell_of_.size();
+    out->cells_queried = cells_queried_;
+    out->large_objects = large_count_;
+    out->cell_size = cell_size_;
+    out->chunks = 0;
+    for (const auto& c : cells_) {
+      if (!c->in_use) continue;
+      Stats s;
+      c->core.FillStats(&s);
+      out->chunks += s.chunks;
+    }
+  }
+
+  Status Validate() const;
+
+  const Options& options() const { return options_; }
+  /// White-box tests corrupt internals through this peer to prove Validate() notices.
+  friend struct GridTestPeer;
+
+ private:
+  static constexpr uint32_t kNone = ~uint32_t{0};
+  // Cell coordinates: b bits per axis, so that K of them pack into 63 bits (a hash key that is
+  // never FlatMap's all-ones empty marker).
+  static constexpr int kBits = 63 / kDim;
+  static constexpr int64_t kLimit = int64_t{1} << (kBits - 1);
+  using CellCoord = std::array<int64_t, kAxes>;
+
+  struct CellRef {
+    uint32_t cell;
+    uint32_t local;
+  };
+  enum class State : uint8_t { kDead, kLive };
+  struct Object {
+    CellCoord lo{}, hi{};     // cell range
+    uint32_t refs = 0;        // first CellRef in refs_ (small objects)
+    uint32_t nrefs = 0;       // cells covered (0 for large objects)
+    uint32_t large = kNone;   // index in large_ (large objects)
+    State state = State::kDead;
+  };
+  struct GridCell {
+    explicit GridCell(const typename Cell::Options& o) : core(o) {}
+    Cell core;
+    CellCoord coord{};
+    uint64_t key = 0;
+    std::vector<uint32_t> global;      // local handle -> global handle (kNone: free)
+    std::vector<uint32_t> free_local;  // reusable local handles
+    std::vector<uint32_t> erases;      // buffered operations, by local handle
+    std::vector<HandleBox<kDim, Coord>> updates, inserts;
+    std::vector<uint32_t> large;  // large objects whose range covers this cell
+    uint32_t members = 0;         // live objects once the buffered operations are applied
+    bool touched = false;
+    bool in_use = false;
+  };
+  struct Large {
+    uint32_t handle = kNone;
+    bool changed = false;
+    FlatSet<uint32_t> partners;  // live objects overlapping this one (global handles)
+  };
+
+  // --- cell coordinates ----------------------------------------------------------------------
+
+  void SetCellSize(double size) {
+    cell_size_ = size;
+    inv_size_ = 1.0 / size;
+  }
+  int64_t CellOf(Coord x) const {
+    double q = std::floor(static_cast<double>(x) * inv_size_);
+    if (!(q > -static_cast<double>(kLimit))) return -kLimit;
+    if (q >= static_cast<double>(kLimit - 1)) return kLimit - 1;
+    return static_cast<int64_t>(q);
+  }
+  void RangeOf(const BoxType& box, CellCoord* out_lo, CellCoord* out_hi) const {
+    for (size_t a = 0; a < kAxes; ++a) {
+      (*out_lo)[a] = CellOf(box.lo[a]);
+      (*out_hi)[a] = CellOf(box.hi[a]);
+    }
+  }
+  // Cells in a range, saturated just above the large-object threshold.
+  uint64_t CellCount(const CellCoord& lo, const CellCoord& hi) const {
+    const uint64_t cap = uint64_t{options_.max_cells_per_object} + 1;
+    uint64_t n = 1;
+    for (size_t a = 0; a < kAxes; ++a) {
+      uint64_t w = static_cast<uint64_t>(hi[a] - lo[a]) + 1;
+      if (w >= cap || n * w >= cap) return cap;
+      n *= w;
+    }
+    return n;
+  }
+  static uint64_t Pack(const CellCoord& c) {
+    uint64_t key = 0;
+    for (size_t a = 0; a < kAxes; ++a) {
+      key |= static_cast<uint64_t>(c[a] + kLimit) << (static_cast<uint64_t>(kBits) * a);
+    }
+    return key;
+  }
+  static bool Contains(const CellCoord& lo, const CellCoord& hi, const CellCoord& c) {
+    for (size_t a = 0; a < kAxes; ++a) {
+      if (c[a] < lo[a] || c[a] > hi[a]) return false;
+    }
+    return true;
+  }
+  // Index of c in the row-major order of the range (axis 0 fastest).
+  static uint32_t RowMajor(const CellCoord& lo, const CellCoord& hi, const CellCoord& c) {
+    uint64_t i = 0;
+    for (size_t a = kAxes; a-- > 0;) {
+      i = i * static_cast<uint64_t>(hi[a] - lo[a] + 1) + static_cast<uint64_t>(c[a] - lo[a]);
+    }
+    return static_cast<uint32_t>(i);
+  }
+  // Calls f(coord) for every cell of a (small) range in row-major order.
+  template <class F>
+  static void ForEachCoord(const CellCoord& lo, const CellCoord& hi, F&& f) {
+    CellCoord c = lo;
+    for (;;) {
+      f(c);
+      size_t a = 0;
+      for (; a < kAxes && c[a] == hi[a]; ++a) c[a] = lo[a];
+      if (a == kAxes) return;
+      ++c[a];
+    }
+  }
+  // Calls f(cell index) for every existing cell in a range of any size: by coordinates when the
+  // range has fewer cells than the grid, else by walking the cells in use.
+  template <class F>
+  void ForEachExistingCell(const CellCoord& lo, const CellCoord& hi, F&& f) {
+    uint64_t n = 1;
+    bool small = true;
+    for (size_t a = 0; a < kAxes && small; ++a) {
+      uint64_t w = static_cast<uint64_t>(hi[a] - lo[a]) + 1;
+      small = w <= cell_of_.size() && n * w <= cell_of_.size();
+      n *= w;
+    }
+    if (small) {
+      ForEachCoord(lo, hi, [&](const CellCoord& c) {
+        if (const uint32_t* idx = cell_of_.Find(Pack(c))) f(*idx);
+      });
+      return;
+    }
+    for (uint32_t idx = 0; idx < cells_.size(); ++idx) {
+      if (cells_[idx]->in_use && Contains(lo, hi, cells_[idx]->coord)) f(idx);
+    }
+  }
+
+  // --- automatic cell size --------------------------------------------------------------------
+
+  // About objects_per_cell objects per cell over the bounds of the box centres; never below the
+  // median box extent, so typical objects cover a few cells at most.
+  template <class ForEachBox>
+  double IdealCellSize(size_t n, ForEachBox&& each) {
+    std::array<double, kAxes> lo, hi;
+    lo.fill(std::numeric_limits<double>::infinity());
+    hi.fill(-std::numeric_limits<double>::infinity());
+    extents_.clear();
+    each([&](const BoxType& b) {
+      double ext = 0;
+      for (size_t a = 0; a < kAxes; ++a) {
+        double l = static_cast<double>(b.lo[a]), h = static_cast<double>(b.hi[a]);
+        double c = l * 0.5 + h * 0.5;
+        lo[a] = std::min(lo[a], c);
+        hi[a] = std::max(hi[a], c);
+        ext = std::max(ext, h - l);
+      }
+      extents_.push_back(ext);
+    });
+    double median = 0;
+    if (!extents_.empty()) {
+      auto mid = extents_.begin() + static_cast<std::ptrdiff_t>(extents_.size() / 2);
+      std::nth_element(extents_.begin(), mid, extents_.end());
+      median = *mid;
+    }
+    // log-space so that huge spans do not overflow the volume.
+    double log_volume = 0;
+    for (size_t a = 0; a < kAxes; ++a) {
+      double span = std::max(hi[a] - lo[a] + median, 1e-300);
+      log_volume += std::log(span);
+    }
+    double size = std::exp((log_volume + std::log(options_.objects_per_cell) -
+                            std::log(static_cast<double>(std::max<size_t>(n, 1)))) /
+                           static_cast<double>(kDim));
+    size = std::max(size, median);
+    if (!(size > 0) || !std::isfinite(size)) size = 1;
+    return size;
+  }
+
+  void MaybeResize() {
+    if (options_.cell_size > 0) return;
+    if (live_ < 64 || (live_ <= 4 * sized_for_ && 4 * live_ >= sized_for_)) return;
+    sized_for_ = live_;
+    double ideal = IdealCellSize(live_, [&](auto&& f) {
+      for (uint32_t h = 0; h < objects_.size(); ++h) {
+        if (objects_[h].state == State::kLive) f(boxes_[h]);
+      }
+    });
+    if (ideal > 0.5 * cell_size_ && ideal < 2 * cell_size_) return;
+    Regrid(ideal);
+  }
+
+  // --- objects ---------------------------------------------------------------------------------
+
+  void Reserve(uint32_t h) {
+    if (h >= objects_.size()) {
+      objects_.resize(h + 1);
+      boxes_.resize(h + 1);
+      stamp_.resize(h + 1, 0);
+      mark_.resize(h + 1, 0);
+    }
+  }
+
+  void InsertObject(uint32_t h, const BoxType& box) {
+    Reserve(h);
+    Object& o = objects_[h];
+    BP_ASSERT(o.state == State::kDead);
+    o.state = State::kLive;
+    boxes_[h] = box;
+    CellCoord lo, hi;
+    RangeOf(box, &lo, &hi);
+    if (CellCount(lo, hi) > options_.max_cells_per_object) {
+      InsertLarge(h, lo, hi);
+      return;
+    }
+    EnterCells(h, lo, hi);
+    if (large_count_ != 0) {
+      BeginLargeCandidates();
+      AddLargeCandidates(h);
+      TestLargeCandidates(h);
+    }
+  }
+
+  void EraseObject(uint32_t h) {
+    Object& o = objects_[h];
+    BP_ASSERT(o.state == State::kLive);
+    o.state = State::kDead;
+    if (o.large != kNone) {
+      EraseLarge(h);
+      return;
+    }
+    if (large_count_ != 0) {
+      BeginLargeCandidates();
+      AddLargeCandidates(h);
+      TestLargeCandidates(h);  // dead: every listed pair goes
+    }
+    LeaveCells(h);
+  }
+
+  void UpdateObject(uint32_t h, const BoxType& box) {
+    Object& o = objects_[h];
+    BP_ASSERT(o.state == State::kLive);
+    boxes_[h] = box;
+    CellCoord lo, hi;
+    RangeOf(box, &lo, &hi);
+    bool large_now = CellCount(lo, hi) > options_.max_cells_per_object;
+    if (o.large != kNone) {
+      if (large_now) {
+        MoveLarge(o.large, lo, hi);
+        return;
+      }
+      EraseLarge(h);  // and back into the cells as a small object
+      EnterCells(h, lo, hi);
+      if (large_count_ != 0) {
+        BeginLargeCandidates();
+        AddLargeCandidates(h);
+        TestLargeCandidates(h);
+      }
+      return;
+    }
+    if (large_now) {
+      // Out of every large partner set (by scan: a large object moved earlier in this query may
+      // have left the lists of this object's cells), then out of the cells.
+      for (Large& l : large_) {
+        if (l.handle != kNone && l.partners.Erase(h)) Witness(h, l.handle, false);
+      }
+      LeaveCells(h);
+      InsertLarge(h, lo, hi);
+      return;
+    }
+    const bool with_large = large_count_ != 0;
+    if (with_large) {
+      BeginLargeCandidates();
+      AddLargeCandidates(h);
+    }
+    if (lo == o.lo && hi == o.hi) {
+      for (uint32_t i = 0; i < o.nrefs; ++i) {
+        CellRef ref = refs_[o.refs + i];
+        GridCell& c = *cells_[ref.cell];
+        c.updates.push_back({ref.local, box});
+        Touch(ref.cell);
+      }
+    } else {
+      Migrate(h, lo, hi);
+      if (with_large) AddLargeCandidates(h);
+    }
+    if (with_large) TestLargeCandidates(h);
+  }
+
+  // A small object's new cell range differs: update it in the cells it keeps, insert it into
+  // the new ones, erase it from the ones it left.
+  void Migrate(uint32_t h, const CellCoord& lo, const CellCoord& hi) {
+    const BoxType& box = boxes_[h];
+    const uint32_t n = static_cast<uint32_t>(CellCount(lo, hi));
+    const uint32_t refs = AllocRefs(n);
+    Object& o = objects_[h];
+    uint32_t i = 0;
+    ForEachCoord(lo, hi, [&](const CellCoord& c) {
+      CellRef ref;
+      if (Contains(o.lo, o.hi, c)) {
+        ref = refs_[o.refs + RowMajor(o.lo, o.hi, c)];
+        cells_[ref.cell]->updates.push_back({ref.local, box});
+      } else {
+        ref.cell = CellAt(c);
+        GridCell& cell = *cells_[ref.cell];
+        ref.local = AllocLocal(cell, h);
+        cell.inserts.push_back({ref.local, box});
+        ++cell.members;
+      }
+      Touch(ref.cell);
+      refs_[refs + i++] = ref;
+    });
+    uint32_t j = 0;
+    ForEachCoord(o.lo, o.hi, [&](const CellCoord& c) {
+      CellRef ref = refs_[o.refs + j++];
+      if (Contains(lo, hi, c)) return;
+      GridCell& cell = *cells_[ref.cell];
+      cell.erases.push_back(ref.local);
+      --cell.members;
+      Touch(ref.cell);
+    });
+    FreeRefs(o.refs, o.nrefs);
+    o.lo = lo;
+    o.hi = hi;
+    o.refs = refs;
+    o.nrefs = n;
+  }
+
+  void EnterCells(uint32_t h, const CellCoord& lo, const CellCoord& hi) {
+    const uint32_t n = static_cast<uint32_t>(CellCount(lo, hi));
+    const uint32_t refs = AllocRefs(n);
+    uint32_t i = 0;
+    ForEachCoord(lo, hi, [&](const CellCoord& c) {
+      uint32_t idx = CellAt(c);
+      GridCell& cell = *cells_[idx];
+      uint32_t local = AllocLocal(cell, h);
+      cell.inserts.push_back({local, boxes_[h]});
+      ++cell.members;
+      Touch(idx);
+      refs_[refs + i++] = CellRef{idx, local};
+    });
+    Object& o = objects_[h];
+    o.lo = lo;
+    o.hi = hi;
+    o.refs = refs;
+    o.nrefs = n;
+    o.large = kNone;
+  }
+
+  void LeaveCells(uint32_t h) {
+    Object& o = objects_[h];
+    for (uint32_t i = 0; i < o.nrefs; ++i) {
+      CellRef ref = refs_[o.refs + i];
+      GridCell& cell = *cells_[ref.cell];
+      cell.erases.push_back(ref.local);
+      --cell.members;
+      Touch(ref.cell);
+    }
+    FreeRefs(o.refs, o.nrefs);
+    o.nrefs = 0;
+  }
+
+  // --- cells -----------------------------------------------------------------------------------
+
+  // The cell at c, created (or recycled) if absent; a new cell lists the large objects over it.
+  uint32_t CellAt(const CellCoord& c) {
+    bool inserted = false;
+    uint64_t key = Pack(c);
+    uint32_t& slot = cell_of_.FindOrInsert(key, kNone, &inserted);
+    if (!inserted) return slot;
+    uint32_t idx;
+    if (!free_cells_.empty()) {
+      idx = free_cells_.back();
+      free_cells_.pop_back();
+    } else {
+      idx = static_cast<uint32_t>(cells_.size());
+      cells_.push_back(std::make_unique<GridCell>(options_.cell));
+    }
+    slot = idx;  // FindOrInsert's reference is still valid: nothing was inserted since
+    GridCell& cell = *cells_[idx];
+    cell.coord = c;
+    cell.key = key;
+    cell.in_use = true;
+    for (uint32_t l = 0; l < large_.size(); ++l) {
+      uint32_t lh = large_[l].handle;
+      if (lh != kNone && Contains(objects_[lh].lo, objects_[lh].hi, c)) cell.large.push_back(l);
+    }
+    return idx;
+  }
+
+  uint32_t AllocLocal(GridCell& cell, uint32_t h) {
+    uint32_t local;
+    if (!cell.free_local.empty()) {
+      local = cell.free_local.back();
+      cell.free_local.pop_back();
+    } else {
+      local = static_cast<uint32_t>(cell.global.size());
+      cell.global.push_back(kNone);
+    }
+    cell.global[local] = h;
+    return local;
+  }
+
+  void Touch(uint32_t idx) {
+    GridCell& cell = *cells_[idx];
+    if (!cell.touched) {
+      cell.touched = true;
+      touched_.push_back(idx);
+    }
+  }
+
+  // Applies every touched cell's buffered operations and folds its overlap changes into the
+  // witness counts. Erased local handles are freed only now, after the cell's core has used them.
+  void QueryCells() {
+    cells_queried_ = touched_.size();
+    // When most cells are touched, walk the cell array in order instead of the touched list.
+    if (touched_.size() * 4 > cells_.size()) {
+      for (uint32_t idx = 0; idx < cells_.size(); ++idx) {
+        if (cells_[idx]->touched) QueryCell(idx);
+      }
+    } else {
+      for (uint32_t idx : touched_) QueryCell(idx);
+    }
+    touched_.clear();
+  }
+
+  void QueryCell(uint32_t idx) {
+    GridCell& cell = *cells_[idx];
+    cell.core.Apply(cell.erases, cell.updates, cell.inserts);
+    Stats s;
+    cell.core.FillStats(&s);
+    swaps_ += s.swaps;
+    tests_ += s.overlap_tests;
+    global_ = global_ || s.global_sort;
+    cell.core.tracker().DrainChanges([&](uint32_t a, uint32_t b, bool now) {
+      Witness(cell.global[a], cell.global[b], now);
+    });
+    for (uint32_t local : cell.erases) {
+      cell.global[local] = kNone;
+      cell.free_local.push_back(local);
+    }
+    cell.erases.clear();
+    cell.updates.clear();
+    cell.inserts.clear();
+    cell.touched = false;
+    if (cell.members == 0) {
+      BP_ASSERT(cell.core.live() == 0);
+      cell_of_.Erase(cell.key);
+      cell.global.clear();
+      cell.free_local.clear();
+      cell.large.clear();
+      cell.in_use = false;
+      free_cells_.push_back(idx);
+    }
+  }
+
+  // One more (add) or one fewer (remove) witness of the pair a, b.
+  void Witness(uint32_t a, uint32_t b, bool add) {
+    uint64_t p = HandlePair(a, b);
+    if (recount_) {
+      // Rebuilding after a resize: the tracker already holds the pair set; count only.
+      BP_ASSERT(add && tracker_.Contains(a, b));
+      if (!recount_seen_.Insert(p)) ++extra_.FindOrInsert(p, 0);
+      return;
+    }
+    if (add) {
+      if (!tracker_.Add(a, b)) ++extra_.FindOrInsert(p, 0);
+      return;
+    }
+    if (uint32_t* e = extra_.Find(p)) {
+      if (--*e == 0) extra_.Erase(p);
+      return;
+    }
+    bool removed = tracker_.Remove(a, b);
+    BP_ASSERT(removed);
+    (void)removed;
+  }
+
+  // --- large objects ---------------------------------------------------------------------------
+
+  void InsertLarge(uint32_t h, const CellCoord& lo, const CellCoord& hi) {
+    uint32_t l;
+    if (!free_large_.empty()) {
+      l = free_large_.back();
+      free_large_.pop_back();
+    } else {
+      l = static_cast<uint32_t>(large_.size());
+      large_.emplace_back();
+      large_stamp_.push_back(0);
+    }
+    large_[l].handle = h;
+    Object& o = objects_[h];
+    o.large = l;
+    o.lo = lo;
+    o.hi = hi;
+    o.nrefs = 0;
+    ++large_count_;
+    ForEachExistingCell(lo, hi, [&](uint32_t idx) { cells_[idx]->large.push_back(l); });
+    MarkChanged(l);
+  }
+
+  void MoveLarge(uint32_t l, const CellCoord& lo, const CellCoord& hi) {
+    Object& o = objects_[large_[l].handle];
+    if (lo != o.lo || hi != o.hi) {
+      Unregister(l);
+      o.lo = lo;
+      o.hi = hi;
+      ForEachExistingCell(lo, hi, [&](uint32_t idx) { cells_[idx]->large.push_back(l); });
+    }
+    MarkChanged(l);
+  }
+
+  void Unregister(uint32_t l) {
+    const Object& o = objects_[large_[l].handle];
+    ForEachExistingCell(o.lo, o.hi, [&](uint32_t idx) {
+      std::vector<uint32_t>& list = cells_[idx]->large;
+      auto it = std::find(list.begin(), list.end(), l);
+      BP_ASSERT(it != list.end());
+      *it = list.back();
+      list.pop_back();
+    });
+  }
+
+  void EraseLarge(uint32_t h) {
+    uint32_t l = objects_[h].large;
+    Unregister(l);
+    Large& lg = large_[l];
+    scratch_.clear();
+    lg.partners.ForEach([&](uint32_t x) { scratch_.push_back(x); });
+    for (uint32_t x : scratch_) {
+      Witness(h, x, false);
+      if (objects_[x].large != kNone) large_[objects_[x].large].partners.Erase(h);
+    }
+    lg.partners.Clear();
+    lg.handle = kNone;
+    free_large_.push_back(l);
+    objects_[h].large = kNone;
+    --large_count_;
+  }
+
+  void MarkChanged(uint32_t l) {
+    if (!large_[l].changed) {
+      large_[l].changed = true;
+      changed_large_.push_back(l);
+    }
+  }
+
+  void BeginLargeCandidates() {
+    NextEpoch(&large_epoch_, &large_stamp_, nullptr);
+    candidates_.clear();
+  }
+  // Stamps are compared with an epoch; when it wraps, the stamps restart from zero.
+  static void NextEpoch(uint32_t* epoch, std::vector<uint32_t>* a, std::vector<uint32_t>* b) {
+    if (++*epoch != 0) return;
+    std::fill(a->begin(), a->end(), 0);
+    if (b != nullptr) std::fill(b->begin(), b->end(), 0);
+    *epoch = 1;
+  }
+  // The large objects listed in h's current cells, each once.
+  void AddLargeCandidates(uint32_t h) {
+    const Object& o = objects_[h];
+    for (uint32_t i = 0; i < o.nrefs; ++i) {
+      for (uint32_t l : cells_[refs_[o.refs + i].cell]->large) {
+        if (large_stamp_[l] != large_epoch_) {
+          large_stamp_[l] = large_epoch_;
+          candidates_.push_back(l);
+        }
+      }
+    }
+  }
+  // Brings the pairs of small object h with the candidates up to date (h dead: removes them).
+  // A candidate that changed this query is rescanned afterwards, which settles its pairs anyway.
+  void TestLargeCandidates(uint32_t h) {
+    const bool alive = objects_[h].state == State::kLive;
+    for (uint32_t l : candidates_) {
+      Large& lg = large_[l];
+      ++tests_;
+      bool now = alive && Overlaps(boxes_[h], boxes_[lg.handle]);
+      if (now ? lg.partners.Insert(h) : lg.partners.Erase(h)) Witness(h, lg.handle, now);
+    }
+  }
+
+  // Sets a changed large object's partners to exactly the live objects overlapping it: the small
+  // ones in the cells its range covers and the other large ones.
+  void Rescan(uint32_t l) {
+    const uint32_t h = large_[l].handle;
+    const BoxType& box = boxes_[h];
+    const Object& o = objects_[h];
+    NextEpoch(&epoch_, &stamp_, &mark_);
+    found_.clear();
+    ForEachExistingCell(o.lo, o.hi, [&](uint32_t idx) {
+      for (uint32_t g : cells_[idx]->global) {
+        if (g == kNone || stamp_[g] == epoch_) continue;
+        stamp_[g] = epoch_;
+        const Object& x = objects_[g];
+        if (x.state != State::kLive || x.large != kNone) continue;  // left, or now large
+        ++tests_;
+        if (Overlaps(boxes_[g], box)) {
+          mark_[g] = epoch_;
+          found_.push_back(g);
+        }
+      }
+    });
+    for (const Large& other : large_) {
+      uint32_t g = other.handle;
+      if (g == kNone || g == h) continue;
+      ++tests_;
+      if (Overlaps(boxes_[g], box)) {
+        mark_[g] = epoch_;
+        found_.push_back(g);
+      }
+    }
+    Large& lg = large_[l];
+    scratch_.clear();
+    lg.partners.ForEach([&](uint32_t x) {
+      if (mark_[x] != epoch_) scratch_.push_back(x);
+    });
+    for (uint32_t x : scratch_) {
+      lg.partners.Erase(x);
+      Witness(h, x, false);
+      if (objects_[x].large != kNone) large_[objects_[x].large].partners.Erase(h);
+    }
+    for (uint32_t x : found_) {
+      if (!lg.partners.Insert(x)) continue;
+      Witness(h, x, true);
+      if (objects_[x].large != kNone) large_[objects_[x].large].partners.Insert(h);
+    }
+  }
+
+  // --- resizing ----------------------------------------------------------------------------------
+
+  // Rebuilds every cell with a new cell size once the query's changes are applied. The overlap
+  // set does not change, so the tracker is kept; only the witness counts are recounted.
+  void Regrid(double size) {
+    rebuilt_ = true;
+    cells_.clear();
+    free_cells_.clear();
+    cell_of_.Clear();
+    large_.clear();
+    large_stamp_.clear();
+    free_large_.clear();
+    changed_large_.clear();
+    large_count_ = 0;
+    refs_.clear();
+    for (auto& list : free_refs_) list.clear();
+    extra_.Clear();
+    SetCellSize(size);
+    recount_ = true;
+    for (uint32_t h = 0; h < objects_.size(); ++h) {
+      Object& o = objects_[h];
+      o.large = kNone;
+      o.nrefs = 0;
+      if (o.state != State::kLive) continue;
+      CellCoord lo, hi;
+      RangeOf(boxes_[h], &lo, &hi);
+      if (CellCount(lo, hi) > options_.max_cells_per_object) {
+        InsertLarge(h, lo, hi);
+      } else {
+        EnterCells(h, lo, hi);
+      }
+    }
+    // Small-large pairs come from the rescans (every large object is marked changed).
+    for (uint32_t l : changed_large_) {
+      large_[l].changed = false;
+      Rescan(l);
+    }
+    changed_large_.clear();
+    QueryCells();
+    recount_ = false;
+    BP_ASSERT(recount_seen_.size() == tracker_.overlaps());
+    recount_seen_.Clear();
+  }
+
+  // --- cell reference pool: blocks of 2^k refs, free lists by k ------------------------------
+
+  uint32_t AllocRefs(uint32_t n) {
+    size_t k = static_cast<size_t>(std::bit_width(n - 1));
+    if (k >= free_refs_.size()) free_refs_.resize(k + 1);
+    if (!free_refs_[k].empty()) {
+      uint32_t at = free_refs_[k].back();
+      free_refs_[k].pop_back();
+      return at;
+    }
+    uint32_t at = static_cast<uint32_t>(refs_.size());
+    refs_.resize(refs_.size() + (size_t{1} << k));
+    return at;
+  }
+  void FreeRefs(uint32_t at, uint32_t n) {
+    if (n == 0) return;
+    free_refs_[static_cast<size_t>(std::bit_width(n - 1))].push_back(at);
+  }
+
+  Options options_;
+  double cell_size_ = 0;
+  double inv_size_ = 0;  // 0 until the size is chosen
+  size_t sized_for_ = 0;
+  size_t live_ = 0;
+  std::vector<BoxType> boxes_;  // by global handle
+  std::vector<Object> objects_;
+  std::vector<CellRef> refs_;
+  std::vector<std::vector<uint32_t>> free_refs_;
+  std::vector<std::unique_ptr<GridCell>> cells_;
+  std::vector<uint32_t> free_cells_;
+  FlatMap<uint64_t, uint32_t> cell_of_;  // packed coordinate -> cell index
+  std::vector<uint32_t> touched_;
+  std::vector<Large> large_;
+  std::vector<uint32_t> free_large_;
+  std::vector<uint32_t> changed_large_;
+  size_t large_count_ = 0;
+  PairTracker tracker_;
+  FlatMap<uint64_t, uint32_t> extra_;  // witnesses beyond the first
+  bool recount_ = false;
+  FlatSet<uint64_t> recount_seen_;
+  // Scratch of the large-object paths.
+  std::vector<uint32_t> stamp_, mark_;  // by global handle, against epoch_
+  uint32_t epoch_ = 0;
+  std::vector<uint32_t> large_stamp_;  // by large index, against large_epoch_
+  uint32_t large_epoch_ = 0;
+  std::vector<uint32_t> candidates_, found_, scratch_;
+  std::vector<double> extents_;
+  // Counters of the last query.
+  size_t swaps_ = 0, tests_ = 0, cells_queried_ = 0;
+  bool global_ = false, rebuilt_ = false;
+};
+
+template <class Cell>
+Status GridCore<Cell>::Validate() const {
+  auto fail = [](const std::string& what) {
+    return Status(StatusCode::kInternal, std::string(kName) + ": " + what);
+  };
+  std::vector<uint32_t> live;
+  size_t large_live = 0;
+  for (uint32_t h = 0; h < objects_.size(); ++h) {
+    const Object& o = objects_[h];
+    if (o.state != State::kLive) continue;
+    live.push_back(h);
+    CellCoord lo, hi;
+    RangeOf(boxes_[h], &lo, &hi);
+    if (lo != o.lo || hi != o.hi) return fail("object " + std::to_string(h) + ": stale cell range");
+    bool is_large = CellCount(lo, hi) > options_.max_cells_per_object;
+    if (is_large != (o.large != kNone)) return fail("object " + std::to_string(h) + ": wrong set");
+    if (is_large) {
+      ++large_live;
+      if (o.large >= large_.size() || large_[o.large].handle != h) return fail("large index");
+      continue;
+    }
+    if (o.nrefs != CellCount(lo, hi)) return fail("object " + std::to_string(h) + ": ref count");
+    uint32_t i = 0;
+    bool ok = true;
+    ForEachCoord(lo, hi, [&](const CellCoord& c) {
+      CellRef ref = refs_[o.refs + i++];
+      ok = ok && ref.cell < cells_.size() && cells_[ref.cell]->in_use &&
+           cells_[ref.cell]->coord == c && ref.local < cells_[ref.cell]->global.size() &&
+           cells_[ref.cell]->global[ref.local] == h;
+    });
+    if (!ok) return fail("object " + std::to_string(h) + ": cell refs astray");
+  }
+  if (live.size() != live_) return fail("live count differs");
+  if (large_live != large_count_) return fail("large count differs");
+  if (!touched_.empty() || !changed_large_.empty()) return fail("work left after a query");
+
+  FlatMap<uint64_t, uint32_t> count;
+  size_t in_use = 0;
+  for (uint32_t idx = 0; idx < cells_.size(); ++idx) {
+    const GridCell& c = *cells_[idx];
+    if (!c.in_use) continue;
+    ++in_use;
+    const uint32_t* found = cell_of_.Find(c.key);
+    if (c.key != Pack(c.coord) || found == nullptr || *found != idx) return fail("cell hash");
+    size_t members = 0;
+    for (uint32_t g : c.global) members += g != kNone ? 1 : 0;
+    if (members != c.members || members != c.core.live() || members == 0) {
+      return fail("cell members differ");
+    }
+    if (c.touched || !c.erases.empty() || !c.updates.empty() || !c.inserts.empty()) {
+      return fail("cell left with buffered operations");
+    }
+    for (uint32_t l = 0; l < large_.size(); ++l) {
+      uint32_t lh = large_[l].handle;
+      bool covers = lh != kNone && Contains(objects_[lh].lo, objects_[lh].hi, c.coord);
+      bool listed = std::count(c.large.begin(), c.large.end(), l) == 1;
+      if (covers != listed || std::count(c.large.begin(), c.large.end(), l) > 1) {
+        return fail("cell's large list");
+      }
+    }
+    if (Status s = c.core.Validate(); !s.ok()) return fail("cell: " + s.message());
+    c.core.tracker().ForEachOverlap([&](uint32_t a, uint32_t b) {
+      ++count.FindOrInsert(HandlePair(c.global[a], c.global[b]), 0);
+    });
+  }
+  if (in_use != cell_of_.size()) return fail("cells in the hash differ from cells in use");
+  for (uint32_t l = 0; l < large_.size(); ++l) {
+    const Large& lg = large_[l];
+    if (lg.handle == kNone) {
+      if (!lg.partners.empty()) return fail("free large slot with partners");
+      continue;
+    }
+    size_t overlapping = 0;
+    for (uint32_t g : live) overlapping += g != lg.handle && Overlaps(boxes_[g], boxes_[lg.handle]);
+    if (overlapping != lg.partners.size()) return fail("large partners differ");
+    bool ok = true;
+    lg.partners.ForEach([&](uint32_t x) {
+      ok = ok && objects_[x].state == State::kLive && Overlaps(boxes_[x], boxes_[lg.handle]);
+      if (objects_[x].large != kNone) {
+        ok = ok && large_[objects_[x].large].partners.Contains(lg.handle);
+        if (x < lg.handle) return;  // a large pair counts once
+      }
+      ++count.FindOrInsert(HandlePair(x, lg.handle), 0);
+    });
+    if (!ok) return fail("large partner not overlapping or not mutual");
+  }
+  size_t multi = 0;
+  bool ok = true;
+  count.ForEach([&](uint64_t p, uint32_t n) {
+    ok = ok && tracker_.Contains(PairFirst(p), PairSecond(p));
+    const uint32_t* e = extra_.Find(p);
+    ok = ok && (n == 1 ? e == nullptr : (e != nullptr && *e == n - 1));
+    multi += n > 1;
+  });
+  if (!ok || count.size() != tracker_.overlaps() || multi != extra_.size()) {
+    return fail("witness counts differ from the cells");
+  }
+  return CheckOverlapSet(boxes_, std::move(live), tracker_, kName);
+}
+
+}  // namespace detail
+
+/// The grid over segmented-interval-list cells (few movers, few events per cell).
+template <int K, Coordinate T, class Key = uint64_t>
+using GridSegmentedSap = detail::KeyedEngine<detail::GridCore<detail::SegmentedSapCore<K, T>>, Key>;
+/// The grid over batch insertion and removal cells (many movers or many events per cell).
+template <int K, Coordinate T, class Key = uint64_t>
+using GridBatchSap = detail::KeyedEngine<detail::GridCore<detail::BatchSapCore<K, T>>, Key>;
+/// Options of GridSegmentedSap and GridBatchSap.
+using GridSegmentedSapOptions = GridOptions<SegmentedSapOptions>;
+using GridBatchSapOptions = GridOptions<BatchSapOptions>;
+
+}  // namespace bp
