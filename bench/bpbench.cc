@@ -9,6 +9,7 @@
 //   bpbench --engine batch_sap --sort local|global|auto
 //   bpbench --threshold-sweep [--engine E]    local vs global sort over the moving fraction
 //   bpbench --figure 8|9                      the paper's single-cell figures, every cell variant
+//   bpbench --engine grid_segmented_sap|grid_batch_sap [--cell-size X | --objects-per-cell N]
 #include <algorithm>
 #include <cinttypes>
 #include <cstdint>
@@ -24,6 +25,7 @@
 
 #include "bp/batch_sap.h"
 #include "bp/brute_force.h"
+#include "bp/grid.h"
 #include "bp/scene_runner.h"
 #include "bp/segmented_sap.h"
 #include "bp/workload_scenarios.h"
@@ -41,6 +43,9 @@ struct Config {
   uint32_t chunk = 32;
   uint32_t presorted_min = bp::SegmentedSapOptions().presorted_min;
   double global_fraction = -1;  // < 0: the engine's default
+  double cell_size = 0;         // grid engines: 0 = automatic
+  double objects_per_cell = bp::GridSegmentedSapOptions().objects_per_cell;
+  uint32_t max_cells = bp::GridSegmentedSapOptions().max_cells_per_object;
   int repeats = 5;
   int frames = 0;  // 0: the scenario's own
   bool progress = false;
@@ -52,7 +57,10 @@ struct Result {
   double build_ms = 0;
   uint64_t pairs0 = 0, pairs = 0, collides = 0, uncollides = 0, set_hash = 0, chain = 0;
   uint64_t errors = 0, swaps = 0, tests = 0, global_frames = 0, local_frames = 0;
+  bp::Stats last;  // the engine's counters after the last frame of the last run
 };
+
+bool IsGrid(const Config& cfg) { return cfg.engine.rfind("grid_", 0) == 0; }
 
 double Quantile(std::vector<double> v, double q) {
   if (v.empty()) return 0;
@@ -96,10 +104,28 @@ bp::BatchSapOptions BatchOptions(const Config& cfg) {
   return options;
 }
 
+template <class GridOptions>
+GridOptions MakeGridOptions(const Config& cfg, const decltype(GridOptions::cell)& cell) {
+  GridOptions options;
+  options.cell_size = cfg.cell_size;
+  options.objects_per_cell = cfg.objects_per_cell;
+  options.max_cells_per_object = cfg.max_cells;
+  options.cell = cell;
+  return options;
+}
+
 template <int K, class T>
 std::unique_ptr<bp::Broadphase<K, T>> MakeEngine(const Config& cfg) {
   if (cfg.engine == "brute_force") return std::make_unique<bp::BruteForce<K, T>>();
   if (cfg.engine == "batch_sap") return std::make_unique<bp::BatchSap<K, T>>(BatchOptions(cfg));
+  if (cfg.engine == "grid_segmented_sap") {
+    return std::make_unique<bp::GridSegmentedSap<K, T>>(
+        MakeGridOptions<bp::GridSegmentedSapOptions>(cfg, SapOptions(cfg)));
+  }
+  if (cfg.engine == "grid_batch_sap") {
+    return std::make_unique<bp::GridBatchSap<K, T>>(
+        MakeGridOptions<bp::GridBatchSapOptions>(cfg, BatchOptions(cfg)));
+  }
   return std::make_unique<bp::SegmentedSap<K, T>>(SapOptions(cfg));
 }
 
@@ -124,6 +150,7 @@ Result RunTyped(const SceneParams& params, int frames, const Config& cfg,
                      cfg.repeats, f, frames);
       }
     }
+    r.last = engine->GetStats();
     r.frame_ms.insert(r.frame_ms.end(), run.begin(), run.end());
     r.run_medians.push_back(Quantile(run, 0.5));
     r.pairs0 = runner.pairs_frame0();
@@ -165,12 +192,18 @@ void PrintJson(const std::string& scenario, const SceneParams& p, int frames, co
   o << "{\"scenario\":\"" << scenario << "\",\"engine\":\"" << cfg.engine << "\",\"dim\":" << p.dim
     << ",\"coord\":\"" << cfg.coord << "\",\"n\":" << p.n << ",\"moving\":" << p.moving
     << ",\"churn\":" << p.churn << ",\"frames\":" << frames << ",\"repeats\":" << cfg.repeats;
-  if (cfg.engine == "segmented_sap") {
+  if (IsGrid(cfg)) {
+    o << ",\"cell_size\":" << r.last.cell_size << ",\"auto_size\":" << (cfg.cell_size == 0)
+      << ",\"objects_per_cell\":" << cfg.objects_per_cell << ",\"max_cells\":" << cfg.max_cells
+      << ",\"cells\":" << r.last.cells << ",\"large_objects\":" << r.last.large_objects;
+  }
+  if (cfg.engine == "segmented_sap" || cfg.engine == "grid_segmented_sap") {
     o << ",\"chunk\":" << cfg.chunk << ",\"presorted_min\":" << cfg.presorted_min;
   }
   if (cfg.engine != "brute_force") {
-    double fraction = cfg.engine == "batch_sap" ? BatchOptions(cfg).global_sort_fraction
-                                                : SapOptions(cfg).global_sort_fraction;
+    bool batch = cfg.engine == "batch_sap" || cfg.engine == "grid_batch_sap";
+    double fraction =
+        batch ? BatchOptions(cfg).global_sort_fraction : SapOptions(cfg).global_sort_fraction;
     o << ",\"sort\":\"" << cfg.sort << "\",\"global_fraction\":" << fraction;
   }
   if (!cfg.variant.empty()) o << ",\"variant\":\"" << cfg.variant << "\"";
@@ -292,8 +325,21 @@ int main(int argc, char** argv) {
                  "comma-separated golden scenarios: S2a,S2b,S2c,S1-10k,S1-100k,S1-200k,S3,S4,2-D")
       ->capture_default_str();
   app.add_option("--custom", custom, "a custom 3-D scene instead: N,MOVING,CHURN");
-  app.add_option("--engine,-e", cfg.engine, "segmented_sap, batch_sap or brute_force")
-      ->check(CLI::IsMember({"segmented_sap", "batch_sap", "brute_force"}))
+  app.add_option("--engine,-e", cfg.engine,
+                 "segmented_sap, batch_sap, grid_segmented_sap, grid_batch_sap or brute_force")
+      ->check(CLI::IsMember(
+          {"segmented_sap", "batch_sap", "grid_segmented_sap", "grid_batch_sap", "brute_force"}))
+      ->capture_default_str();
+  app.add_option("--cell-size", cfg.cell_size, "grid engines: cell edge (0: automatic)")
+      ->check(CLI::Range(0.0, 1e300))
+      ->capture_default_str();
+  app.add_option("--objects-per-cell", cfg.objects_per_cell,
+                 "grid engines: the automatic cell size aims at this many objects per cell")
+      ->check(CLI::Range(1.0, 1e9))
+      ->capture_default_str();
+  app.add_option("--max-cells", cfg.max_cells,
+                 "grid engines: cells an object may cover before it is kept as a large object")
+      ->check(CLI::Range(1u, 1000000u))
       ->capture_default_str();
   app.add_option("--coord", cfg.coord, "coordinate type")
       ->check(CLI::IsMember({"float", "double", "int32"}))

@@ -10,6 +10,7 @@
 
 #include "bp/batch_sap.h"
 #include "bp/brute_force.h"
+#include "bp/grid.h"
 #include "bp/scene_runner.h"
 #include "bp/segmented_sap.h"
 #include "bp/workload_scenarios.h"
@@ -127,6 +128,58 @@ TEST(GoldenBatchSap, AlwaysLocalS2b) {
 TEST(GoldenBatchSap, LargeRows) {
   if (!LongTests()) GTEST_SKIP() << "set BP_LONG_TESTS=1 for S1-100k, S1-200k, S3, S4";
   for (const char* name : {"S4", "S1-100k", "S3", "S1-200k"}) ExpectGoldenBatch<3, float>(name);
+}
+
+// The grid over either cell: every S row of WORKLOADS.md (the rows above 10k objects with
+// BP_LONG_TESTS=1), the automatic cell size, and small cells (size 4: objects span up to 8 cells
+// and migrate often; size 1.5 with at most 4 cells per object: many objects are large).
+template <class Engine>
+void ExpectGoldenGrid(const char* name, const typename Engine::Options& options = {}) {  // 3-D rows
+  const GoldenScenario* g = FindGolden(name);
+  ASSERT_NE(g, nullptr);
+  Engine engine(options);
+  ExpectGolden<3, float>(engine, *g);
+}
+
+TEST(GoldenGrid, SegmentedCellsAuto) {
+  for (const char* name : {"S2a", "S2b", "S2c", "S1-10k"}) {
+    ExpectGoldenGrid<GridSegmentedSap<3, float>>(name);
+  }
+  GridSegmentedSap<2, double> planar;
+  ExpectGolden<2, double>(planar, *FindGolden("2-D"));
+}
+
+TEST(GoldenGrid, BatchCellsAuto) {
+  for (const char* name : {"S2a", "S2b", "S2c", "S1-10k"}) {
+    ExpectGoldenGrid<GridBatchSap<3, float>>(name);
+  }
+  GridBatchSap<2, float> planar;
+  ExpectGolden<2, float>(planar, *FindGolden("2-D"));
+}
+
+TEST(GoldenGrid, Int32AndDouble) {
+  GridSegmentedSap<3, int32_t> a;
+  ExpectGolden<3, int32_t>(a, *FindGolden("S2c"));
+  GridBatchSap<3, double> b;
+  ExpectGolden<3, double>(b, *FindGolden("S1-10k"));
+}
+
+TEST(GoldenGrid, SmallCellsAndLargeObjects) {
+  GridSegmentedSapOptions small;
+  small.cell_size = 4;
+  ExpectGoldenGrid<GridSegmentedSap<3, float>>("S2c", small);
+  GridBatchSapOptions tiny;
+  tiny.cell_size = 1.5;
+  tiny.max_cells_per_object = 4;
+  ExpectGoldenGrid<GridBatchSap<3, float>>("S2b", tiny);
+}
+
+TEST(GoldenGrid, LargeRows) {
+  if (!LongTests()) GTEST_SKIP() << "set BP_LONG_TESTS=1 for S1-100k, S1-200k, S3, S4";
+  for (const char* name : {"S4", "S1-100k", "S3", "S1-200k"}) {
+    ExpectGoldenGrid<GridSegmentedSap<3, float>>(name);
+    ExpectGoldenGrid<GridBatchSap<3, float>>(name);
+  }
 }
 
 TEST(GoldenBruteForce, S2aFloat) {

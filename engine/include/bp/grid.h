@@ -94,7 +94,8 @@ class GridCore {
   explicit GridCore(const Options& options = Options()) : options_(options) {
     options_.max_cells_per_object = std::max<uint32_t>(options_.max_cells_per_object, 1);
     if (!(options_.objects_per_cell >= 1)) options_.objects_per_cell = 1;
-    if (options_.cell_size > 0 && std::isfinite(options_.cell_size)) SetCellSize(options_.cell_size);
+    if (options_.cell_size > 0 && std::isfinite(options_.cell_size))
+      SetCellSize(options_.cell_size);
   }
 
   void Apply(std::span<const uint32_t> erases, std::span<const HandleBox<kDim, Coord>> updates,
@@ -163,10 +164,10 @@ class GridCore {
   };
   enum class State : uint8_t { kDead, kLive };
   struct Object {
-    CellCoord lo{}, hi{};     // cell range
-    uint32_t refs = 0;        // first CellRef in refs_ (small objects)
-    uint32_t nrefs = 0;       // cells covered (0 for large objects)
-    uint32_t large = kNone;   // index in large_ (large objects)
+    CellCoord lo{}, hi{};    // cell range
+    uint32_t refs = 0;       // first CellRef in refs_ (small objects)
+    uint32_t nrefs = 0;      // cells covered (0 for large objects)
+    uint32_t large = kNone;  // index in large_ (large objects)
     State state = State::kDead;
   };
   struct GridCell {
@@ -569,9 +570,8 @@ class GridCore {
     swaps_ += s.swaps;
     tests_ += s.overlap_tests;
     global_ = global_ || s.global_sort;
-    cell.core.tracker().DrainChanges([&](uint32_t a, uint32_t b, bool now) {
-      Witness(cell.global[a], cell.global[b], now);
-    });
+    cell.core.tracker().DrainChanges(
+        [&](uint32_t a, uint32_t b, bool now) { Witness(cell.global[a], cell.global[b], now); });
     for (uint32_t local : cell.erases) {
       cell.global[local] = kNone;
       cell.free_local.push_back(local);

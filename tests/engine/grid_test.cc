@@ -1,0 +1,295 @@
+// White-box tests of the grid: coordinates far from the origin and cell indices that would
+// overflow, cells created and recycled, the automatic cell size and the rebuild when the
+// population grows, large objects (world-sized boxes, transitions between small and large), and
+// the validator noticing corrupted witness counts and large-object lists. Every scene is run
+// against the brute-force engine, event by event.
+#include "bp/grid.h"
+
+#include <cstdint>
+#include <limits>
+#include <random>
+#include <string>
+#include <vector>
+
+#include "test_support.h"
+#include <gtest/gtest.h>
+
+namespace bp {
+namespace detail {
+
+struct GridTestPeer {
+  template <class Core>
+  static void DropLargeListEntry(Core& core) {
+    for (auto& cell : core.cells_) {
+      if (cell->in_use && !cell->large.empty()) {
+        cell->large.pop_back();
+        return;
+      }
+    }
+  }
+  template <class Core>
+  static void AddWitness(Core& core) {
+    core.tracker_.ForEachOverlap([&](uint32_t a, uint32_t b) {
+      if (core.extra_.empty()) ++core.extra_.FindOrInsert(HandlePair(a, b), 0);
+    });
+  }
+};
+
+}  // namespace detail
+
+namespace test {
+namespace {
+
+using SegmentedGridCore = detail::GridCore<detail::SegmentedSapCore<3, float>>;
+
+// Runs the same calls on an engine and on brute force; every query must report the same events.
+template <int K, class T, class Engine>
+class Twin {
+ public:
+  using BoxType = Box<K, T>;
+  explicit Twin(Engine* engine) : engine_(engine) {}
+
+  void Insert(uint64_t key, const BoxType& b) {
+    ASSERT_TRUE(engine_->Insert(key, b).ok());
+    ASSERT_TRUE(oracle_.Insert(key, b).ok());
+  }
+  void Update(uint64_t key, const BoxType& b) {
+    ASSERT_TRUE(engine_->Update(key, b).ok());
+    ASSERT_TRUE(oracle_.Update(key, b).ok());
+  }
+  void Erase(uint64_t key) {
+    ASSERT_TRUE(engine_->Erase(key).ok());
+    ASSERT_TRUE(oracle_.Erase(key).ok());
+  }
+  void Query() {
+    RecordingSink<uint64_t> got, want;
+    engine_->Query(got);
+    oracle_.Query(want);
+    ASSERT_EQ(got.uncollides, want.uncollides) << "query " << queries_;
+    ASSERT_EQ(got.collides, want.collides) << "query " << queries_;
+    ASSERT_EQ(engine_->GetStats().overlaps, oracle_.GetStats().overlaps);
+    events_ += got.collides.size() + got.uncollides.size();
+    ++queries_;
+  }
+  size_t events() const { return events_; }
+
+ private:
+  Engine* engine_;
+  BruteForce<K, T> oracle_;
+  size_t queries_ = 0;
+  size_t events_ = 0;
+};
+
+template <int K, class T>
+Box<K, T> Cube(T lo, T extent) {
+  Box<K, T> b;
+  for (size_t a = 0; a < static_cast<size_t>(K); ++a) {
+    b.lo[a] = lo;
+    b.hi[a] = static_cast<T>(lo + extent);
+  }
+  return b;
+}
+
+// A random scene around `origin` with boxes of about `unit`, moved, churned and teleported.
+template <int K, class T, class Engine>
+void RandomScene(Engine* engine, double origin, double unit, uint64_t seed, int objects = 120,
+                 int frames = 30) {
+  SCOPED_TRACE("origin " + std::to_string(origin) + " unit " + std::to_string(unit));
+  Twin<K, T, Engine> twin(engine);
+  std::mt19937_64 rng(seed);
+  auto coord = [&](double span) {
+    double x = origin + std::uniform_real_distribution<double>(-span, span)(rng) * unit;
+    return static_cast<T>(x);
+  };
+  auto box = [&]() {
+    Box<K, T> b;
+    for (size_t a = 0; a < static_cast<size_t>(K); ++a) {
+      T lo = coord(8);
+      T hi = static_cast<T>(static_cast<double>(lo) +
+                            std::uniform_real_distribution<double>(0, 2)(rng) * unit);
+      b.lo[a] = lo;
+      b.hi[a] = hi < lo ? lo : hi;
+    }
+    return b;
+  };
+  std::vector<uint64_t> live;
+  uint64_t next = 1;
+  for (int i = 0; i < objects; ++i) {
+    twin.Insert(next, box());
+    live.push_back(next++);
+  }
+  twin.Query();
+  for (int f = 0; f < frames && !::testing::Test::HasFailure(); ++f) {
+    for (int i = 0; i < objects / 4; ++i) {
+      size_t j = rng() % live.size();
+      switch (rng() % 5) {
+        case 0:
+          twin.Erase(live[j]);
+          live[j] = next;
+          twin.Insert(next++, box());
+          break;
+        default:
+          twin.Update(live[j], box());
+      }
+    }
+    twin.Query();
+  }
+  EXPECT_GT(twin.events(), 0u);
+}
+
+TEST(Grid, FarFromTheOriginFloat) {
+  for (double origin : {1e6, -1e6, 1e30, -1e30, 3e38}) {
+    for (double unit : {1.0, origin * 1e-5}) {
+      GridSegmentedSapOptions options;
+      options.cell_size = 1.0;  // cell indices far beyond 2^20: clamped into the edge cells
+      GridSegmentedSap<3, float> engine(options);
+      RandomScene<3, float>(&engine, origin, unit < 0 ? -unit : unit, 7);
+      GridBatchSap<2, float> automatic;
+      RandomScene<2, float>(&automatic, origin, unit < 0 ? -unit : unit, 8);
+    }
+  }
+}
+
+TEST(Grid, FarFromTheOriginDouble) {
+  for (double origin : {1e12, -1e12, 1e300, -1e300}) {
+    GridBatchSapOptions options;
+    options.cell_size = 0.5;
+    GridBatchSap<3, double> engine(options);
+    RandomScene<3, double>(&engine, origin, origin > 0 ? origin * 1e-6 : -origin * 1e-6, 9);
+    GridSegmentedSapOptions fine_options;
+    fine_options.cell_size = 0.5;
+    GridSegmentedSap<3, double> fine(fine_options);
+    RandomScene<3, double>(&fine, origin, 1.0, 10);
+  }
+}
+
+TEST(Grid, IntegerExtremes) {
+  GridSegmentedSapOptions options;
+  options.cell_size = 3;
+  GridSegmentedSap<2, int32_t> engine(options);
+  Twin<2, int32_t, GridSegmentedSap<2, int32_t>> twin(&engine);
+  const int32_t lo = std::numeric_limits<int32_t>::lowest();
+  const int32_t hi = std::numeric_limits<int32_t>::max();
+  twin.Insert(1, Box<2, int32_t>{{lo, lo}, {lo + 2, lo + 2}});
+  twin.Insert(2, Box<2, int32_t>{{hi - 2, hi - 2}, {hi, hi}});
+  twin.Insert(3, Box<2, int32_t>{{lo, lo}, {hi, hi}});  // everything: a large object
+  twin.Insert(4, Box<2, int32_t>{{lo + 1, lo + 1}, {lo + 1, lo + 1}});
+  twin.Query();
+  EXPECT_EQ(engine.GetStats().large_objects, 1u);
+  twin.Update(4, Box<2, int32_t>{{hi - 1, hi - 1}, {hi, hi}});  // across the whole range
+  twin.Query();
+  twin.Update(3, Box<2, int32_t>{{0, 0}, {1, 1}});  // large becomes small
+  twin.Query();
+  EXPECT_EQ(engine.GetStats().large_objects, 0u);
+  twin.Erase(1);
+  twin.Erase(2);
+  twin.Query();
+}
+
+TEST(Grid, CellsAreCreatedAndRecycled) {
+  GridSegmentedSapOptions options;
+  options.cell_size = 10;
+  GridSegmentedSap<3, float> engine(options);
+  Twin<3, float, GridSegmentedSap<3, float>> twin(&engine);
+  for (uint64_t i = 0; i < 50; ++i) twin.Insert(i, Cube<3, float>(static_cast<float>(i), 1));
+  twin.Query();
+  const size_t cells = engine.GetStats().cells;
+  EXPECT_GE(cells, 6u);
+  // March the whole population far away, a little each frame: cells are created ahead and
+  // recycled behind, so their number stays bounded.
+  for (int f = 1; f <= 40; ++f) {
+    for (uint64_t i = 0; i < 50; ++i) {
+      twin.Update(i, Cube<3, float>(static_cast<float>(i) + 25.0f * static_cast<float>(f), 1));
+    }
+    twin.Query();
+    EXPECT_LE(engine.GetStats().cells, cells + 8) << "frame " << f;
+  }
+  for (uint64_t i = 0; i < 50; ++i) twin.Erase(i);
+  twin.Query();
+  EXPECT_EQ(engine.GetStats().cells, 0u);
+  EXPECT_EQ(engine.Size(), 0u);
+}
+
+TEST(Grid, AutomaticSizeFollowsThePopulation) {
+  GridBatchSap<3, float> engine;  // automatic size
+  Twin<3, float, GridBatchSap<3, float>> twin(&engine);
+  std::mt19937_64 rng(3);
+  std::uniform_real_distribution<float> pos(0, 60);
+  uint64_t key = 0;
+  for (int i = 0; i < 20; ++i) twin.Insert(key++, Cube<3, float>(pos(rng), 1));
+  twin.Query();
+  const double first = engine.GetStats().cell_size;
+  bool rebuilt = false;
+  for (int f = 0; f < 8; ++f) {  // 20 to 5120 objects
+    int n = static_cast<int>(engine.Size());  // double the population each frame
+    for (int i = 0; i < n; ++i) twin.Insert(key++, Cube<3, float>(pos(rng), 1));
+    twin.Update(0, Cube<3, float>(pos(rng), 1));
+    twin.Query();
+    rebuilt = rebuilt || engine.GetStats().rebuilt;
+  }
+  EXPECT_TRUE(rebuilt);
+  EXPECT_LT(engine.GetStats().cell_size, first / 2);  // denser world: smaller cells
+  EXPECT_GE(engine.GetStats().cells, 8u);  // one cell at first
+}
+
+TEST(Grid, LargeObjectsAgainstTheGrid) {
+  GridSegmentedSapOptions options;
+  options.cell_size = 4;
+  options.max_cells_per_object = 8;
+  GridSegmentedSap<3, float> engine(options);
+  Twin<3, float, GridSegmentedSap<3, float>> twin(&engine);
+  std::mt19937_64 rng(5);
+  std::uniform_real_distribution<float> pos(0, 40);
+  for (uint64_t i = 0; i < 400; ++i) twin.Insert(i, Cube<3, float>(pos(rng), 1));
+  twin.Insert(1000, Cube<3, float>(-1e30f, 2e30f));  // the world
+  for (uint64_t i = 0; i < 10; ++i) twin.Insert(1001 + i, Cube<3, float>(pos(rng), 12));
+  twin.Query();
+  EXPECT_EQ(engine.GetStats().large_objects, 11u);
+  for (int f = 0; f < 30 && !HasFailure(); ++f) {
+    for (uint64_t i = 0; i < 400; i += 3) twin.Update(i, Cube<3, float>(pos(rng), 1));
+    twin.Update(1001 + static_cast<uint64_t>(f % 10), Cube<3, float>(pos(rng), 12));
+    if (f % 5 == 0) {
+      // A small object grows into a large one and a large one shrinks into a small one.
+      twin.Update(7, Cube<3, float>(pos(rng), 15));
+      twin.Update(1003, Cube<3, float>(pos(rng), 1));
+    }
+    if (f % 7 == 0) {
+      twin.Erase(1001);
+      twin.Insert(1001, Cube<3, float>(pos(rng), 20));
+    }
+    if (f == 20) twin.Erase(1000);
+    twin.Query();
+  }
+}
+
+TEST(Grid, ValidatorNoticesCorruption) {
+  GridSegmentedSapOptions options;
+  options.cell_size = 4;
+  options.max_cells_per_object = 4;
+  {
+    GridSegmentedSap<3, float> engine(options);
+    ASSERT_TRUE(engine.Insert(1, Cube<3, float>(0, 30)).ok());  // large
+    ASSERT_TRUE(engine.Insert(2, Cube<3, float>(1, 1)).ok());
+    RecordingSink<uint64_t> sink;
+    engine.Query(sink);
+    ASSERT_TRUE(engine.Validate().ok());
+    detail::GridTestPeer::DropLargeListEntry(const_cast<SegmentedGridCore&>(engine.core()));
+    EXPECT_FALSE(engine.Validate().ok());
+  }
+  {
+    GridSegmentedSap<3, float> engine(options);
+    ASSERT_TRUE(engine.Insert(1, Cube<3, float>(0, 1)).ok());
+    ASSERT_TRUE(engine.Insert(2, Cube<3, float>(1, 1)).ok());
+    RecordingSink<uint64_t> sink;
+    engine.Query(sink);
+    ASSERT_TRUE(engine.Validate().ok());
+    detail::GridTestPeer::AddWitness(const_cast<SegmentedGridCore&>(engine.core()));
+    Status s = engine.Validate();
+    EXPECT_FALSE(s.ok());
+    EXPECT_NE(s.message().find("witness"), std::string::npos) << s.message();
+  }
+}
+
+}  // namespace
+}  // namespace test
+}  // namespace bp
