@@ -46,6 +46,7 @@ struct Config {
   double cell_size = 0;         // grid engines: 0 = automatic
   double objects_per_cell = bp::GridSegmentedSapOptions().objects_per_cell;
   uint32_t max_cells = bp::GridSegmentedSapOptions().max_cells_per_object;
+  unsigned threads = 1;  // grid engines
   int repeats = 5;
   int frames = 0;  // 0: the scenario's own
   bool progress = false;
@@ -110,6 +111,7 @@ GridOptions MakeGridOptions(const Config& cfg, const decltype(GridOptions::cell)
   options.cell_size = cfg.cell_size;
   options.objects_per_cell = cfg.objects_per_cell;
   options.max_cells_per_object = cfg.max_cells;
+  options.threads = cfg.threads;
   options.cell = cell;
   return options;
 }
@@ -195,7 +197,8 @@ void PrintJson(const std::string& scenario, const SceneParams& p, int frames, co
   if (IsGrid(cfg)) {
     o << ",\"cell_size\":" << r.last.cell_size << ",\"auto_size\":" << (cfg.cell_size == 0)
       << ",\"objects_per_cell\":" << cfg.objects_per_cell << ",\"max_cells\":" << cfg.max_cells
-      << ",\"cells\":" << r.last.cells << ",\"large_objects\":" << r.last.large_objects;
+      << ",\"threads\":" << cfg.threads << ",\"cells\":" << r.last.cells
+      << ",\"large_objects\":" << r.last.large_objects;
   }
   if (cfg.engine == "segmented_sap" || cfg.engine == "grid_segmented_sap") {
     o << ",\"chunk\":" << cfg.chunk << ",\"presorted_min\":" << cfg.presorted_min;
@@ -336,6 +339,9 @@ int main(int argc, char** argv) {
   app.add_option("--objects-per-cell", cfg.objects_per_cell,
                  "grid engines: the automatic cell size aims at this many objects per cell")
       ->check(CLI::Range(1.0, 1e9))
+      ->capture_default_str();
+  app.add_option("--threads", cfg.threads, "grid engines: threads applying the cells")
+      ->check(CLI::Range(1u, 256u))
       ->capture_default_str();
   app.add_option("--max-cells", cfg.max_cells,
                  "grid engines: cells an object may cover before it is kept as a large object")

@@ -53,12 +53,12 @@ constexpr uint64_t kU64Max = std::numeric_limits<uint64_t>::max();
 // A configuration file is a few kilobytes; refuse to slurp a device or a huge file by mistake.
 constexpr size_t kMaxConfigFileBytes = 1u << 20;
 
-// Engines that partition space into cells (none yet: the grid is issue 6).
-bool IsGridAlgorithm(std::string_view /*algorithm*/) { return false; }
+// Engines that partition space into cells.
+bool IsGridAlgorithm(std::string_view algorithm) { return algorithm.starts_with("grid_"); }
 // Engines that keep fattened boxes and so accept a margin (none yet).
 bool SupportsMargin(std::string_view /*algorithm*/) { return false; }
-// Engines whose Query runs on more than one thread (none yet).
-bool IsMultiThreaded(std::string_view /*algorithm*/) { return false; }
+// Engines whose Query runs on more than one thread: the grids apply their cells in parallel.
+bool IsMultiThreaded(std::string_view algorithm) { return IsGridAlgorithm(algorithm); }
 
 void ReadEngine(YamlReader& r, const Field& section, EngineConfig* e) {
   r.ReadMapping(section, kEngineKeys, [&](std::string_view name, const Field& v) {

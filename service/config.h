@@ -32,8 +32,8 @@ enum class FrameBoundary {
 enum class CoordinateType { kFloat, kDouble, kInt32 };
 
 /// Engine algorithm names the daemon can build (the factory lives elsewhere).
-inline constexpr std::array<std::string_view, 3> kAlgorithms{"brute_force", "segmented_sap",
-                                                             "batch_sap"};
+inline constexpr std::array<std::string_view, 5> kAlgorithms{
+    "brute_force", "segmented_sap", "batch_sap", "grid_segmented_sap", "grid_batch_sap"};
 
 /// Valid values of logging.level, most verbose first.
 inline constexpr std::array<std::string_view, 7> kLogLevels{"trace", "debug",    "info", "warn",
@@ -41,7 +41,7 @@ inline constexpr std::array<std::string_view, 7> kLogLevels{"trace", "debug",   
 
 /// The `engine` section: which broadphase the daemon runs.
 struct EngineConfig {
-  std::string algorithm = "segmented_sap";             ///< one of kAlgorithms
+  std::string algorithm = "grid_segmented_sap";        ///< one of kAlgorithms
   int dimension = 3;                                   ///< 2 or 3
   CoordinateType coordinate = CoordinateType::kFloat;  ///< yaml: float | double | int32
   std::optional<double> cell_size;  ///< yaml: "auto" (nullopt, default) or a positive finite number

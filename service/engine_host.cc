@@ -8,6 +8,7 @@
 
 #include "bp/batch_sap.h"
 #include "bp/brute_force.h"
+#include "bp/grid.h"
 #include "bp/segmented_sap.h"
 
 namespace bp::service {
@@ -325,10 +326,21 @@ Status Make(const EngineConfig& config, uint64_t max_objects, std::unique_ptr<En
     engine = std::make_unique<SegmentedSap<K, T, uint64_t>>();
   } else if (config.algorithm == "batch_sap") {
     engine = std::make_unique<BatchSap<K, T, uint64_t>>();
+  } else if (config.algorithm == "grid_segmented_sap") {
+    GridSegmentedSapOptions options;
+    options.cell_size = config.cell_size.value_or(0.0);
+    options.threads = static_cast<unsigned>(config.threads);
+    engine = std::make_unique<GridSegmentedSap<K, T, uint64_t>>(options);
+  } else if (config.algorithm == "grid_batch_sap") {
+    GridBatchSapOptions options;
+    options.cell_size = config.cell_size.value_or(0.0);
+    options.threads = static_cast<unsigned>(config.threads);
+    engine = std::make_unique<GridBatchSap<K, T, uint64_t>>(options);
   } else {
     return Status(StatusCode::kInvalidArgument,
                   "unknown engine algorithm '" + config.algorithm +
-                      "' (known: brute_force, segmented_sap, batch_sap)");
+                      "' (known: brute_force, segmented_sap, batch_sap, grid_segmented_sap, "
+                      "grid_batch_sap)");
   }
   *out = std::make_unique<TypedHost<K, T>>(std::move(engine), max_objects);
   return Status::Ok();

@@ -14,6 +14,8 @@
 #include "test_support.h"
 #include <gtest/gtest.h>
 
+#include "bp/workload.h"
+
 namespace bp {
 namespace detail {
 
@@ -220,7 +222,7 @@ TEST(Grid, AutomaticSizeFollowsThePopulation) {
   twin.Query();
   const double first = engine.GetStats().cell_size;
   bool rebuilt = false;
-  for (int f = 0; f < 8; ++f) {  // 20 to 5120 objects
+  for (int f = 0; f < 8; ++f) {               // 20 to 5120 objects
     int n = static_cast<int>(engine.Size());  // double the population each frame
     for (int i = 0; i < n; ++i) twin.Insert(key++, Cube<3, float>(pos(rng), 1));
     twin.Update(0, Cube<3, float>(pos(rng), 1));
@@ -229,7 +231,7 @@ TEST(Grid, AutomaticSizeFollowsThePopulation) {
   }
   EXPECT_TRUE(rebuilt);
   EXPECT_LT(engine.GetStats().cell_size, first / 2);  // denser world: smaller cells
-  EXPECT_GE(engine.GetStats().cells, 8u);  // one cell at first
+  EXPECT_GE(engine.GetStats().cells, 8u);             // one cell at first
 }
 
 TEST(Grid, LargeObjectsAgainstTheGrid) {
@@ -259,6 +261,63 @@ TEST(Grid, LargeObjectsAgainstTheGrid) {
     }
     if (f == 20) twin.Erase(1000);
     twin.Query();
+  }
+}
+
+// Every event of a scene, in order, with a frame marker between queries.
+template <class Engine>
+std::vector<std::pair<uint64_t, uint64_t>> SceneEvents(unsigned threads, uint32_t n,
+                                                       uint32_t moving, uint32_t churn,
+                                                       int frames) {
+  typename Engine::Options options;
+  options.threads = threads;
+  options.cell_size = 6;  // about 40 cells for 3000 objects
+  Engine engine(options);
+  workload::SceneParams params;
+  params.n = n;
+  params.moving = moving;
+  params.churn = churn;
+  workload::Scene scene(params);
+  RecordingSink<uint64_t> sink;
+  std::vector<std::pair<uint64_t, uint64_t>> out;
+  auto query = [&] {
+    sink.Clear();
+    engine.Query(sink);
+    out.insert(out.end(), sink.uncollides.begin(), sink.uncollides.end());
+    out.emplace_back(~uint64_t{0}, ~uint64_t{0});  // collides follow
+    out.insert(out.end(), sink.collides.begin(), sink.collides.end());
+    out.emplace_back(~uint64_t{0}, 0);  // end of frame
+  };
+  for (const auto& b : scene.Initial()) {
+    EXPECT_TRUE(engine.Insert(b.id, workload::ToBox<3, float>(b, scene.grid())).ok());
+  }
+  query();
+  workload::FrameOps ops;
+  for (int f = 0; f < frames; ++f) {
+    scene.NextFrame(&ops);
+    for (uint64_t id : ops.erases) EXPECT_TRUE(engine.Erase(id).ok());
+    for (const auto& b : ops.updates) {
+      EXPECT_TRUE(engine.Update(b.id, workload::ToBox<3, float>(b, scene.grid())).ok());
+    }
+    for (const auto& b : ops.inserts) {
+      EXPECT_TRUE(engine.Insert(b.id, workload::ToBox<3, float>(b, scene.grid())).ok());
+    }
+    query();
+  }
+  return out;
+}
+
+TEST(Grid, ThreadCountDoesNotChangeEvents) {
+  using Seg = GridSegmentedSap<3, float>;
+  using Batch = GridBatchSap<3, float>;
+  const auto one = SceneEvents<Seg>(1, 3000, 600, 40, 30);
+  EXPECT_GT(one.size(), 1000u);
+  for (unsigned threads : {2u, 4u})
+    EXPECT_TRUE(SceneEvents<Seg>(threads, 3000, 600, 40, 30) == one);
+  const auto batch = SceneEvents<Batch>(1, 3000, 3000, 100, 20);
+  EXPECT_TRUE(batch == SceneEvents<Seg>(1, 3000, 3000, 100, 20));  // and the cells agree
+  for (unsigned threads : {2u, 4u}) {
+    EXPECT_TRUE(SceneEvents<Batch>(threads, 3000, 3000, 100, 20) == batch);
   }
 }
 

@@ -102,7 +102,7 @@ class TempDir {
 
 TEST(ConfigDefaults, MatchTheDocumentedValues) {
   Config c;
-  EXPECT_EQ(c.engine.algorithm, "segmented_sap");
+  EXPECT_EQ(c.engine.algorithm, "grid_segmented_sap");
   EXPECT_EQ(c.engine.dimension, 3);
   EXPECT_EQ(c.engine.coordinate, CoordinateType::kFloat);
   EXPECT_FALSE(c.engine.cell_size.has_value());
@@ -325,7 +325,7 @@ const RuleCase kRuleCases[] = {
     // Names from a fixed list.
     {"UnknownAlgorithm", "engine:\n  algorithm: sap\n",
      "cfg.yaml:2:14: engine.algorithm: unknown algorithm 'sap' (valid: brute_force, "
-     "segmented_sap, batch_sap)"},
+     "segmented_sap, batch_sap, grid_segmented_sap, grid_batch_sap)"},
     {"UnknownCoordinate", "engine:\n  coordinate: int64\n",
      "cfg.yaml:2:15: engine.coordinate: unknown coordinate type 'int64' (valid: float, double, "
      "int32)"},
@@ -358,8 +358,8 @@ const RuleCase kRuleCases[] = {
     {"DuplicateTopicKey", "dds:\n  topics:\n    events: a\n    events: b\n",
      "cfg.yaml:4:5: dds.topics.events: duplicate key 'dds.topics.events' (first at line 3)"},
     // Cross-key errors.
-    {"MarginWithSegmentedSap", "engine:\n  margin: 0.1\n",
-     "cfg.yaml:2:11: engine.margin: algorithm 'segmented_sap' has no fattened boxes; only 0 "
+    {"MarginWithTheDefaultEngine", "engine:\n  margin: 0.1\n",
+     "cfg.yaml:2:11: engine.margin: algorithm 'grid_segmented_sap' has no fattened boxes; only 0 "
      "(exact) is supported"},
     {"MarginWithBruteForce", "engine:\n  margin: 1\n  algorithm: brute_force\n",
      "cfg.yaml:2:11: engine.margin: algorithm 'brute_force' has no fattened boxes; only 0 "
@@ -522,12 +522,13 @@ TEST(ConfigValues, NumbersTakeTheUsualSpellings) {
 // Warnings: accepted, but noteworthy.
 
 TEST(ConfigWarnings, CellSizeForANonGridEngine) {
-  Config c = ParseOk("engine:\n  cell_size: 0.5\n");
+  Config c = ParseOk("engine:\n  algorithm: segmented_sap\n  cell_size: 0.5\n");
   EXPECT_EQ(c.engine.cell_size, 0.5);
   ASSERT_EQ(c.warnings.size(), 1u);
   EXPECT_EQ(c.warnings[0],
-            "cfg.yaml:2:14: engine.cell_size: ignored by engine 'segmented_sap' (grid engines "
+            "cfg.yaml:3:14: engine.cell_size: ignored by engine 'segmented_sap' (grid engines "
             "only)");
+  EXPECT_TRUE(ParseOk("engine:\n  cell_size: 0.5\n").warnings.empty());  // the grid's
   EXPECT_TRUE(ParseOk("engine:\n  cell_size: auto\n").warnings.empty());
 }
 
@@ -538,6 +539,7 @@ TEST(ConfigWarnings, ThreadsForASingleThreadedEngine) {
   EXPECT_EQ(c.warnings[0],
             "cfg.yaml:3:12: engine.threads: engine 'brute_force' is single-threaded; threads = 4 "
             "has no effect");
+  EXPECT_TRUE(ParseOk("engine:\n  threads: 2\n").warnings.empty());  // the grids' cells
 }
 
 TEST(ConfigWarnings, TickWithoutTickBoundary) {
@@ -658,7 +660,7 @@ TEST(ConfigToYamlTest, RoundTripsANonDefaultConfig) {
 TEST(ConfigToYamlTest, WritesEveryKeyPlainWhereUnambiguous) {
   std::string yaml = ConfigToYaml(Config());
   for (const char* line :
-       {"engine:\n", "  algorithm: segmented_sap\n", "  cell_size: auto\n", "  margin: 0.0\n",
+       {"engine:\n", "  algorithm: grid_segmented_sap\n", "  cell_size: auto\n", "  margin: 0.0\n",
         "  partition: \"\"\n", "  topics:\n", "    events: bp_events\n", "  tick_ms: 16.667\n",
         "  max_batch_bytes: 67108864\n", "  summary_interval_s: 5.0\n", "  file: \"\"\n"}) {
     EXPECT_TRUE(Contains(yaml, line)) << line << "---\n" << yaml;

@@ -122,6 +122,8 @@ TEST(Daemon, SceneMatchesOracleFrameByFrame3D) { RunScene<3>("segmented_sap"); }
 TEST(Daemon, SceneMatchesOracleFrameByFrame2D) { RunScene<2>("segmented_sap"); }
 TEST(Daemon, BatchSapSceneMatchesOracleFrameByFrame3D) { RunScene<3>("batch_sap"); }
 TEST(Daemon, SceneMatchesOracleWithBruteForceEngine) { RunScene<3>("brute_force"); }
+TEST(Daemon, GridSceneMatchesOracleFrameByFrame3D) { RunScene<3>("grid_segmented_sap"); }
+TEST(Daemon, GridBatchSceneMatchesOracleFrameByFrame2D) { RunScene<2>("grid_batch_sap"); }
 
 wire::UpdateBatch InsertBatch(std::initializer_list<std::pair<uint64_t, Box<3, float>>> boxes) {
   wire::UpdateBatch batch;

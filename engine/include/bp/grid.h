@@ -61,6 +61,7 @@
 #include "bp/detail/keyed_engine.h"
 #include "bp/detail/pair_tracker.h"
 #include "bp/detail/sweep.h"
+#include "bp/detail/worker_pool.h"
 #include "bp/segmented_sap.h"
 
 namespace bp {
@@ -74,6 +75,9 @@ struct GridOptions {
   double objects_per_cell = 300;
   /// An object whose box would cover more cells than this is kept in the large set instead.
   uint32_t max_cells_per_object = 16;
+  /// Threads that apply the touched cells of a query (the caller's included). Events do not
+  /// depend on it: cells are independent, and their changes are folded in one fixed order.
+  unsigned threads = 1;
   /// Options of every cell.
   CellOptions cell{};
 };
@@ -547,24 +551,35 @@ class GridCore {
     }
   }
 
-  // Applies every touched cell's buffered operations and folds its overlap changes into the
-  // witness counts. Erased local handles are freed only now, after the cell's core has used them.
+  // Applies every touched cell's buffered operations (in parallel: cells share nothing), then
+  // folds each cell's overlap changes into the witness counts in the order of touched_, which
+  // does not depend on the thread count. Erased local handles are freed only then, after the
+  // cell's core has used them.
   void QueryCells() {
     cells_queried_ = touched_.size();
-    // When most cells are touched, walk the cell array in order instead of the touched list.
     if (touched_.size() * 4 > cells_.size()) {
+      // Most cells are touched: list them in cell order by one walk of the cell array.
+      touched_.clear();
       for (uint32_t idx = 0; idx < cells_.size(); ++idx) {
-        if (cells_[idx]->touched) QueryCell(idx);
+        if (cells_[idx]->touched) touched_.push_back(idx);
       }
-    } else {
-      for (uint32_t idx : touched_) QueryCell(idx);
     }
+    if (pool_ != nullptr) {
+      pool_->ParallelFor(touched_.size(), [this](size_t i) { ApplyCell(touched_[i]); });
+    } else {
+      for (uint32_t idx : touched_) ApplyCell(idx);
+    }
+    for (uint32_t idx : touched_) FinishCell(idx);
     touched_.clear();
   }
 
-  void QueryCell(uint32_t idx) {
+  void ApplyCell(uint32_t idx) {
     GridCell& cell = *cells_[idx];
     cell.core.Apply(cell.erases, cell.updates, cell.inserts);
+  }
+
+  void FinishCell(uint32_t idx) {
+    GridCell& cell = *cells_[idx];
     Stats s;
     cell.core.FillStats(&s);
     swaps_ += s.swaps;
@@ -828,6 +843,7 @@ class GridCore {
   }
 
   Options options_;
+  std::unique_ptr<WorkerPool> pool_;  // when threads > 1
   double cell_size_ = 0;
   double inv_size_ = 0;  // 0 until the size is chosen
   size_t sized_for_ = 0;

@@ -1,0 +1,111 @@
+// bp::detail::WorkerPool: a fixed set of threads that run one index-parallel loop at a time
+// (fork/join). The grid applies its touched cells through it; the caller's thread takes part, so
+// a pool of t threads starts t - 1 workers.
+//
+// Why not oneTBB: the engine depends on the standard library only, and the grid needs one
+// operation, a parallel loop over a few hundred independent cells per query, where dynamic
+// claiming of indices through one atomic counter balances uneven cells well enough.
+//
+// Thread safety: ParallelFor is called by one thread at a time (the engine's owner); the body
+// runs concurrently on distinct indices and must not throw.
+// Invariants:
+//  1. Outside ParallelFor every worker waits on wake_ and no body is referenced.
+//  2. ParallelFor returns only after every index in [0, n) has been run exactly once.
+#pragma once
+
+#include <algorithm>
+#include <atomic>
+#include <condition_variable>
+#include <cstddef>
+#include <cstdint>
+#include <functional>
+#include <mutex>
+#include <thread>
+#include <vector>
+
+namespace bp::detail {
+
+class WorkerPool {
+ public:
+  /// A pool running loops on `threads` threads in all (the caller's included); at least 1.
+  explicit WorkerPool(unsigned threads) {
+    for (unsigned i = 1; i < std::max(threads, 1u); ++i) workers_.emplace_back([this] { Work(); });
+  }
+  ~WorkerPool() {
+    {
+      std::lock_guard<std::mutex> lock(mutex_);
+      stop_ = true;
+    }
+    wake_.notify_all();
+    for (std::thread& t : workers_) t.join();
+  }
+  WorkerPool(const WorkerPool&) = delete;
+  WorkerPool& operator=(const WorkerPool&) = delete;
+
+  /// Threads in all, the caller's included.
+  unsigned threads() const { return static_cast<unsigned>(workers_.size()) + 1; }
+
+  /// Runs body(i) for every i in [0, n), spread over the pool's threads; returns when all ran.
+  void ParallelFor(size_t n, const std::function<void(size_t)>& body) {
+    if (workers_.empty() || n < 2) {
+      for (size_t i = 0; i < n; ++i) body(i);
+      return;
+    }
+    {
+      std::lock_guard<std::mutex> lock(mutex_);
+      body_ = &body;
+      n_ = n;
+      next_.store(0, std::memory_order_relaxed);
+      busy_ = workers_.size();
+      ++generation_;
+    }
+    wake_.notify_all();
+    Run(body, n);
+    std::unique_lock<std::mutex> lock(mutex_);
+    done_.wait(lock, [this] { return busy_ == 0; });
+    body_ = nullptr;
+  }
+
+ private:
+  void Run(const std::function<void(size_t)>& body, size_t n) {
+    for (size_t i = next_.fetch_add(1, std::memory_order_relaxed); i < n;
+         i = next_.fetch_add(1, std::memory_order_relaxed)) {
+      body(i);
+    }
+  }
+
+  void Work() {
+    uint64_t seen = 0;
+    for (;;) {
+      const std::function<void(size_t)>* body;
+      size_t n;
+      {
+        std::unique_lock<std::mutex> lock(mutex_);
+        wake_.wait(lock, [&] { return stop_ || generation_ != seen; });
+        if (stop_) return;
+        seen = generation_;
+        body = body_;
+        n = n_;
+      }
+      Run(*body, n);
+      {
+        std::lock_guard<std::mutex> lock(mutex_);
+        --busy_;
+      }
+      done_.notify_one();
+    }
+  }
+
+  std::vector<std::thread> workers_;
+  std::mutex mutex_;
+  std::condition_variable wake_;
+  std::condition_variable done_;
+  const std::function<void(size_t)>* body_ = nullptr;
+  size_t n_ = 0;
+  std::atomic<size_t> next_{0};
+  size_t busy_ = 0;
+  uint64_t generation_ = 0;
+  bool stop_ = false;
+};
+
+}  // namespace bp::detail
