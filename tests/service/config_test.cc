@@ -555,7 +555,8 @@ TEST(ConfigWarnings, TickWithoutTickBoundary) {
 }
 
 TEST(ConfigWarnings, AreInDocumentOrder) {
-  Config c = ParseOk("frames: {tick_ms: 5}\nengine: {threads: 2, cell_size: 1}\n");
+  Config c = ParseOk(
+      "frames: {tick_ms: 5}\nengine: {threads: 2, cell_size: 1, algorithm: segmented_sap}\n");
   ASSERT_EQ(c.warnings.size(), 3u);
   EXPECT_EQ(c.warnings[0].rfind("cfg.yaml:1:19: frames.tick_ms", 0), 0u);
   EXPECT_EQ(c.warnings[1].rfind("cfg.yaml:2:19: engine.threads", 0), 0u);
