@@ -46,7 +46,10 @@ struct Config {
   double cell_size = 0;         // grid engines: 0 = automatic
   double objects_per_cell = bp::GridSegmentedSapOptions().objects_per_cell;
   uint32_t max_cells = bp::GridSegmentedSapOptions().max_cells_per_object;
-  unsigned threads = 1;  // grid engines
+  unsigned threads = 1;    // grid engines
+  uint32_t big_boxes = 0;  // static boxes of big_width cube widths added to the scene
+  double big_width = 50;
+  bool world_box = false;  // one static box covering the whole scene
   int repeats = 5;
   int frames = 0;  // 0: the scenario's own
   bool progress = false;
@@ -131,12 +134,41 @@ std::unique_ptr<bp::Broadphase<K, T>> MakeEngine(const Config& cfg) {
   return std::make_unique<bp::SegmentedSap<K, T>>(SapOptions(cfg));
 }
 
+// The large-object scene: the scene plus one box over the whole world and big_boxes boxes of
+// big_width cube widths at positions drawn with splitmix64 (ids from 2^40, never moved); they
+// join the scene's first query. The golden hashes then no longer apply: compare engines.
+template <int K, class T>
+void AddStaticBoxes(const Config& cfg, const SceneParams& p, bp::Broadphase<K, T>* engine) {
+  const double side = K == 3 ? std::cbrt(p.n / p.density) : std::sqrt(p.n / p.density);
+  uint64_t id = uint64_t{1} << 40;
+  if (cfg.world_box) {
+    bp::Box<K, T> b;
+    for (size_t a = 0; a < static_cast<size_t>(K); ++a) {
+      b.lo[a] = static_cast<T>(-1);
+      b.hi[a] = static_cast<T>(side + 1);
+    }
+    if (!engine->Insert(id++, b).ok()) std::fprintf(stderr, "bpbench: world box refused\n");
+  }
+  uint64_t state = p.seed ^ 0xB16B0E5;
+  for (uint32_t i = 0; i < cfg.big_boxes; ++i) {
+    bp::Box<K, T> b;
+    for (size_t a = 0; a < static_cast<size_t>(K); ++a) {
+      double u = static_cast<double>(bp::workload::SplitMix64(state) >> 11) * 0x1p-53;
+      double lo = u * std::max(0.0, side - cfg.big_width);
+      b.lo[a] = static_cast<T>(lo);
+      b.hi[a] = static_cast<T>(lo + cfg.big_width);
+    }
+    if (!engine->Insert(id++, b).ok()) std::fprintf(stderr, "bpbench: big box refused\n");
+  }
+}
+
 template <int K, class T>
 Result RunTyped(const SceneParams& params, int frames, const Config& cfg,
                 const std::string& label) {
   Result r;
   for (int rep = 0; rep < cfg.repeats; ++rep) {
     auto engine = MakeEngine<K, T>(cfg);
+    AddStaticBoxes<K, T>(cfg, params, engine.get());
     bp::workload::SceneRunner<K, T> runner(*engine, params);
     double build = runner.Build();
     if (rep == 0) r.build_ms = build;
@@ -210,6 +242,10 @@ void PrintJson(const std::string& scenario, const SceneParams& p, int frames, co
     o << ",\"sort\":\"" << cfg.sort << "\",\"global_fraction\":" << fraction;
   }
   if (!cfg.variant.empty()) o << ",\"variant\":\"" << cfg.variant << "\"";
+  if (cfg.world_box || cfg.big_boxes != 0) {
+    o << ",\"world_box\":" << cfg.world_box << ",\"big_boxes\":" << cfg.big_boxes
+      << ",\"big_width\":" << cfg.big_width;
+  }
   o << extra << ",\"median_ms\":" << Quantile(r.run_medians, 0.5)
     << ",\"mean_ms\":" << Mean(r.frame_ms) << ",\"p90_ms\":" << Quantile(r.frame_ms, 0.9)
     << ",\"run_medians_ms\":[";
@@ -340,6 +376,12 @@ int main(int argc, char** argv) {
                  "grid engines: the automatic cell size aims at this many objects per cell")
       ->check(CLI::Range(1.0, 1e9))
       ->capture_default_str();
+  app.add_option("--big-boxes", cfg.big_boxes, "add this many static boxes of --big-width widths")
+      ->capture_default_str();
+  app.add_option("--big-width", cfg.big_width, "edge of the --big-boxes, in cube widths")
+      ->check(CLI::Range(0.0, 1e6))
+      ->capture_default_str();
+  app.add_flag("--world-box", cfg.world_box, "add one static box covering the whole scene");
   app.add_option("--threads", cfg.threads, "grid engines: threads applying the cells")
       ->check(CLI::Range(1u, 256u))
       ->capture_default_str();
