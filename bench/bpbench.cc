@@ -7,6 +7,7 @@
 //   bpbench --scenario S1-100k --repeats 3
 //   bpbench --sort local|global|auto --chunk 64 --coord double
 //   bpbench --engine batch_sap --sort local|global|auto
+//   bpbench --engine dynamic_octree --octree-capacity 16 --octree-depth 20
 //   bpbench --threshold-sweep [--engine E]    local vs global sort over the moving fraction
 //   bpbench --figure 8|9                      the paper's single-cell figures, every cell variant
 #include <algorithm>
@@ -24,6 +25,7 @@
 
 #include "bp/batch_sap.h"
 #include "bp/brute_force.h"
+#include "bp/dynamic_octree.h"
 #include "bp/scene_runner.h"
 #include "bp/segmented_sap.h"
 #include "bp/workload_scenarios.h"
@@ -41,6 +43,8 @@ struct Config {
   uint32_t chunk = 32;
   uint32_t presorted_min = bp::SegmentedSapOptions().presorted_min;
   double global_fraction = -1;  // < 0: the engine's default
+  uint32_t octree_capacity = bp::DynamicOctreeOptions().max_objects_per_node;
+  uint32_t octree_depth = bp::DynamicOctreeOptions().max_depth;
   int repeats = 5;
   int frames = 0;  // 0: the scenario's own
   bool progress = false;
@@ -96,9 +100,19 @@ bp::BatchSapOptions BatchOptions(const Config& cfg) {
   return options;
 }
 
+bp::DynamicOctreeOptions OctreeOptions(const Config& cfg) {
+  bp::DynamicOctreeOptions options;
+  options.max_objects_per_node = cfg.octree_capacity;
+  options.max_depth = cfg.octree_depth;
+  return options;
+}
+
 template <int K, class T>
 std::unique_ptr<bp::Broadphase<K, T>> MakeEngine(const Config& cfg) {
   if (cfg.engine == "brute_force") return std::make_unique<bp::BruteForce<K, T>>();
+  if (cfg.engine == "dynamic_octree") {
+    return std::make_unique<bp::DynamicOctree<K, T>>(OctreeOptions(cfg));
+  }
   if (cfg.engine == "batch_sap") return std::make_unique<bp::BatchSap<K, T>>(BatchOptions(cfg));
   return std::make_unique<bp::SegmentedSap<K, T>>(SapOptions(cfg));
 }
@@ -168,7 +182,9 @@ void PrintJson(const std::string& scenario, const SceneParams& p, int frames, co
   if (cfg.engine == "segmented_sap") {
     o << ",\"chunk\":" << cfg.chunk << ",\"presorted_min\":" << cfg.presorted_min;
   }
-  if (cfg.engine != "brute_force") {
+  if (cfg.engine == "dynamic_octree") {
+    o << ",\"octree_capacity\":" << cfg.octree_capacity << ",\"octree_depth\":" << cfg.octree_depth;
+  } else if (cfg.engine != "brute_force") {
     double fraction = cfg.engine == "batch_sap" ? BatchOptions(cfg).global_sort_fraction
                                                 : SapOptions(cfg).global_sort_fraction;
     o << ",\"sort\":\"" << cfg.sort << "\",\"global_fraction\":" << fraction;
@@ -292,8 +308,9 @@ int main(int argc, char** argv) {
                  "comma-separated golden scenarios: S2a,S2b,S2c,S1-10k,S1-100k,S1-200k,S3,S4,2-D")
       ->capture_default_str();
   app.add_option("--custom", custom, "a custom 3-D scene instead: N,MOVING,CHURN");
-  app.add_option("--engine,-e", cfg.engine, "segmented_sap, batch_sap or brute_force")
-      ->check(CLI::IsMember({"segmented_sap", "batch_sap", "brute_force"}))
+  app.add_option("--engine,-e", cfg.engine,
+                 "segmented_sap, batch_sap, dynamic_octree or brute_force")
+      ->check(CLI::IsMember({"segmented_sap", "batch_sap", "dynamic_octree", "brute_force"}))
       ->capture_default_str();
   app.add_option("--coord", cfg.coord, "coordinate type")
       ->check(CLI::IsMember({"float", "double", "int32"}))
@@ -310,6 +327,15 @@ int main(int argc, char** argv) {
       ->capture_default_str();
   app.add_option("--chunk", cfg.chunk, "segmented_sap chunk capacity (power of two)")
       ->check(CLI::Range(4u, 4096u))
+      ->capture_default_str();
+  app.add_option("--octree-capacity", cfg.octree_capacity,
+                 "dynamic_octree: objects a leaf holds before it splits")
+      ->check(CLI::Range(1u, 1000000u))
+      ->capture_default_str();
+  app.add_option(
+         "--octree-depth", cfg.octree_depth,
+         "dynamic_octree: halvings below the first root's size past which nodes do not split")
+      ->check(CLI::Range(0u, 2000u))
       ->capture_default_str();
   app.add_option("--repeats,-r", cfg.repeats, "runs per scenario (median of run medians)")
       ->check(CLI::Range(1, 1000))

@@ -32,8 +32,8 @@ enum class FrameBoundary {
 enum class CoordinateType { kFloat, kDouble, kInt32 };
 
 /// Engine algorithm names the daemon can build (the factory lives elsewhere).
-inline constexpr std::array<std::string_view, 3> kAlgorithms{"brute_force", "segmented_sap",
-                                                             "batch_sap"};
+inline constexpr std::array<std::string_view, 4> kAlgorithms{"brute_force", "segmented_sap",
+                                                             "batch_sap", "dynamic_octree"};
 
 /// Valid values of logging.level, most verbose first.
 inline constexpr std::array<std::string_view, 7> kLogLevels{"trace", "debug",    "info", "warn",

@@ -8,6 +8,7 @@
 
 #include "bp/batch_sap.h"
 #include "bp/brute_force.h"
+#include "bp/dynamic_octree.h"
 #include "bp/segmented_sap.h"
 
 namespace bp::service {
@@ -325,10 +326,12 @@ Status Make(const EngineConfig& config, uint64_t max_objects, std::unique_ptr<En
     engine = std::make_unique<SegmentedSap<K, T, uint64_t>>();
   } else if (config.algorithm == "batch_sap") {
     engine = std::make_unique<BatchSap<K, T, uint64_t>>();
+  } else if (config.algorithm == "dynamic_octree") {
+    engine = std::make_unique<DynamicOctree<K, T, uint64_t>>();
   } else {
     return Status(StatusCode::kInvalidArgument,
                   "unknown engine algorithm '" + config.algorithm +
-                      "' (known: brute_force, segmented_sap, batch_sap)");
+                      "' (known: brute_force, segmented_sap, batch_sap, dynamic_octree)");
   }
   *out = std::make_unique<TypedHost<K, T>>(std::move(engine), max_objects);
   return Status::Ok();

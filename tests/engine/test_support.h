@@ -16,6 +16,7 @@
 #include "bp/box.h"
 #include "bp/broadphase.h"
 #include "bp/brute_force.h"
+#include "bp/dynamic_octree.h"
 #include "bp/segmented_sap.h"
 
 namespace bp::test {
@@ -123,6 +124,21 @@ struct MakeBatchSap {
     return std::make_unique<BatchSap<K, T>>(options);
   }
   static std::string Name() { return "BatchSap_g" + std::to_string(kGlobalPercent); }
+};
+
+/// DynamicOctree with the given node capacity and maximum depth (0: the defaults).
+template <uint32_t kCapacity = 0, uint32_t kMaxDepth = 0>
+struct MakeDynamicOctree {
+  template <int K, class T>
+  static std::unique_ptr<Broadphase<K, T>> Create() {
+    DynamicOctreeOptions options;
+    if (kCapacity != 0) options.max_objects_per_node = kCapacity;
+    if (kMaxDepth != 0) options.max_depth = kMaxDepth;
+    return std::make_unique<DynamicOctree<K, T>>(options);
+  }
+  static std::string Name() {
+    return "DynamicOctree_c" + std::to_string(kCapacity) + "_d" + std::to_string(kMaxDepth);
+  }
 };
 
 /// Seeds to run: BP_TEST_SEED alone if set, else `count` seeds derived from `base`, or

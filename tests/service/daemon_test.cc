@@ -121,6 +121,7 @@ void RunScene(const char* algorithm) {
 TEST(Daemon, SceneMatchesOracleFrameByFrame3D) { RunScene<3>("segmented_sap"); }
 TEST(Daemon, SceneMatchesOracleFrameByFrame2D) { RunScene<2>("segmented_sap"); }
 TEST(Daemon, BatchSapSceneMatchesOracleFrameByFrame3D) { RunScene<3>("batch_sap"); }
+TEST(Daemon, DynamicOctreeSceneMatchesOracleFrameByFrame3D) { RunScene<3>("dynamic_octree"); }
 TEST(Daemon, SceneMatchesOracleWithBruteForceEngine) { RunScene<3>("brute_force"); }
 
 wire::UpdateBatch InsertBatch(std::initializer_list<std::pair<uint64_t, Box<3, float>>> boxes) {

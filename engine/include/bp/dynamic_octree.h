@@ -114,9 +114,7 @@ class DynamicOctreeCore {
   /// Depth below the root of the node holding handle h (-1: overflow list).
   int DepthOf(uint32_t h) const;
   /// Whether h's node is a leaf (false for the overflow list).
-  bool InLeaf(uint32_t h) const {
-    return node_of_[h] != kOverflow && !nodes_[node_of_[h]].split;
-  }
+  bool InLeaf(uint32_t h) const { return node_of_[h] != kOverflow && !nodes_[node_of_[h]].split; }
   /// The root's bounds (lo, hi); only meaningful when the tree has a root.
   std::pair<std::array<double, static_cast<size_t>(K)>, std::array<double, static_cast<size_t>(K)>>
   root_bounds() const {
