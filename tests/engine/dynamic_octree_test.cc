@@ -2,8 +2,9 @@
 // +-1e30 in float, +-1e300 in double), extreme values of every coordinate type (lowest()/max()
 // go to the overflow list only where doubles cannot hold a root around them), straddling boxes
 // stay in the split node, leaves split past their capacity, updates inside their node do not
-// move, empty subtrees are freed and small ones collapsed after mass erases; K = 1 and 4 against
-// brute force. Each step compares the events with BruteForce and validates the tree.
+// move, empty subtrees are freed and small ones collapsed after mass erases, a new root adopts
+// the overflow objects it holds; K = 1 and 4 against brute force. Each step compares the events
+// with BruteForce and validates the tree.
 #include <cstdint>
 #include <limits>
 #include <random>
@@ -191,6 +192,35 @@ TEST(DynamicOctree, FirstBatchIsAGiantBox) {
   EXPECT_EQ(s.core().depth(), 20);
   s.Erase(1);
   s.Query();
+}
+
+// Overflow objects whose tree empties: the next root may hold them (a root fitted to a giant
+// box spans all doubles), so they must leave the overflow list (Validate checks it after every
+// query). The root comes from a batch of inserts, or from one box moved out of the overflow list.
+TEST(DynamicOctree, NewRootAdoptsOverflowObjects) {
+  using L = std::numeric_limits<double>;
+  for (bool from_batch : {true, false}) {
+    SCOPED_TRACE(from_batch ? "root from a batch" : "root from one update");
+    Lockstep<2, double> s;
+    InsertCluster<2, double>(s, 0, 20, 0.0, 9);
+    s.Query();
+    s.Insert(100, Cube<2, double>(L::lowest(), L::max()));
+    s.Insert(101, Cube<2, double>(L::lowest(), L::max()));
+    s.Query();
+    ASSERT_EQ(s.core().overflow(), 2u);
+    for (uint64_t k = 0; k < 20; ++k) s.Erase(k);
+    s.Query();
+    EXPECT_FALSE(s.core().has_root());
+    if (from_batch) {
+      s.Insert(102, Cube<2, double>(L::lowest(), L::max()));
+      s.Insert(103, Cube<2, double>(5.0, 6.0));
+    } else {
+      s.Update(101, Cube<2, double>(L::lowest(), L::max()));
+    }
+    s.Query();
+    EXPECT_TRUE(s.core().has_root());
+    EXPECT_EQ(s.core().overflow(), 0u);
+  }
 }
 
 TEST(DynamicOctree, LeafSplitsPastItsCapacity) {

@@ -188,6 +188,7 @@ class DynamicOctreeCore {
   }
   void CreateRoot(Bounds lo, Bounds hi);
   bool GrowOnce(const Box<K, T>& b);
+  void AdoptOverflow();
   void AddEntry(uint32_t n, uint32_t h) {
     std::vector<Entry>& list = n == kOverflow ? overflow_ : nodes_[n].objects;
     node_of_[h] = n;
@@ -276,6 +277,7 @@ void DynamicOctreeCore<K, T>::Apply(std::span<const uint32_t> erases,
       }
     }
     CreateRoot(lo, hi);
+    AdoptOverflow();
   }
   for (const auto& [h, box] : inserts) {
     if (h >= state_.size()) {
@@ -454,6 +456,25 @@ bool DynamicOctreeCore<K, T>::GrowOnce(const Box<K, T>& b) {
   return true;
 }
 
+// A new or larger root may hold objects of the overflow list: move those into the tree
+// (invariant 2). Inserting a box inside the root grows nothing, so this does not recurse.
+template <int K, Coordinate T>
+void DynamicOctreeCore<K, T>::AdoptOverflow() {
+  regrow_.clear();
+  for (size_t i = 0; i < overflow_.size();) {
+    if (Contains(nodes_[root_], overflow_[i].box)) {
+      uint32_t o = overflow_[i].handle;
+      RemoveEntry(o);
+      regrow_.push_back(o);
+    } else {
+      ++i;
+    }
+  }
+  std::vector<uint32_t> adopt;
+  adopt.swap(regrow_);
+  for (uint32_t o : adopt) Insert(o);
+}
+
 template <int K, Coordinate T>
 void DynamicOctreeCore<K, T>::Insert(uint32_t h) {
   const Box<K, T>& b = boxes_[h];
@@ -461,26 +482,12 @@ void DynamicOctreeCore<K, T>::Insert(uint32_t h) {
     Bounds lo, hi;
     for (size_t a = 0; a < kAxes; ++a) lo[a] = ToBound(b.lo[a]), hi[a] = ToBound(b.hi[a]);
     CreateRoot(lo, hi);
+    AdoptOverflow();
   }
   if (!Contains(nodes_[root_], b)) {
     bool grew = false;
     while (!Contains(nodes_[root_], b) && GrowOnce(b)) grew = true;
-    if (grew && !overflow_.empty()) {
-      // A larger root may now hold objects of the overflow list.
-      regrow_.clear();
-      for (size_t i = 0; i < overflow_.size();) {
-        if (Contains(nodes_[root_], overflow_[i].box)) {
-          uint32_t o = overflow_[i].handle;
-          RemoveEntry(o);
-          regrow_.push_back(o);
-        } else {
-          ++i;
-        }
-      }
-      std::vector<uint32_t> again;
-      again.swap(regrow_);
-      for (uint32_t o : again) Insert(o);  // inside the root: no growth, no recursion here
-    }
+    if (grew) AdoptOverflow();
     if (!Contains(nodes_[root_], b)) {
       AddEntry(kOverflow, h);
       return;
