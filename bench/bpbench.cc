@@ -7,6 +7,7 @@
 //   bpbench --scenario S1-100k --repeats 3
 //   bpbench --sort local|global|auto --chunk 64 --coord double
 //   bpbench --engine batch_sap --sort local|global|auto
+//   bpbench --engine dynamic_octree --octree-capacity 16 --octree-depth 20
 //   bpbench --threshold-sweep [--engine E]    local vs global sort over the moving fraction
 //   bpbench --figure 8|9                      the paper's single-cell figures, every cell variant
 //   bpbench --engine grid_segmented_sap|grid_batch_sap [--cell-size X | --objects-per-cell N]
@@ -25,6 +26,7 @@
 
 #include "bp/batch_sap.h"
 #include "bp/brute_force.h"
+#include "bp/dynamic_octree.h"
 #include "bp/grid.h"
 #include "bp/scene_runner.h"
 #include "bp/segmented_sap.h"
@@ -50,6 +52,8 @@ struct Config {
   uint32_t big_boxes = 0;  // static boxes of big_width cube widths added to the scene
   double big_width = 50;
   bool world_box = false;  // one static box covering the whole scene
+  uint32_t octree_capacity = bp::DynamicOctreeOptions().max_objects_per_node;
+  uint32_t octree_depth = bp::DynamicOctreeOptions().max_depth;
   int repeats = 5;
   int frames = 0;  // 0: the scenario's own
   bool progress = false;
@@ -119,9 +123,19 @@ GridOptions MakeGridOptions(const Config& cfg, const decltype(GridOptions::cell)
   return options;
 }
 
+bp::DynamicOctreeOptions OctreeOptions(const Config& cfg) {
+  bp::DynamicOctreeOptions options;
+  options.max_objects_per_node = cfg.octree_capacity;
+  options.max_depth = cfg.octree_depth;
+  return options;
+}
+
 template <int K, class T>
 std::unique_ptr<bp::Broadphase<K, T>> MakeEngine(const Config& cfg) {
   if (cfg.engine == "brute_force") return std::make_unique<bp::BruteForce<K, T>>();
+  if (cfg.engine == "dynamic_octree") {
+    return std::make_unique<bp::DynamicOctree<K, T>>(OctreeOptions(cfg));
+  }
   if (cfg.engine == "batch_sap") return std::make_unique<bp::BatchSap<K, T>>(BatchOptions(cfg));
   if (cfg.engine == "grid_segmented_sap") {
     return std::make_unique<bp::GridSegmentedSap<K, T>>(
@@ -235,7 +249,9 @@ void PrintJson(const std::string& scenario, const SceneParams& p, int frames, co
   if (cfg.engine == "segmented_sap" || cfg.engine == "grid_segmented_sap") {
     o << ",\"chunk\":" << cfg.chunk << ",\"presorted_min\":" << cfg.presorted_min;
   }
-  if (cfg.engine != "brute_force") {
+  if (cfg.engine == "dynamic_octree") {
+    o << ",\"octree_capacity\":" << cfg.octree_capacity << ",\"octree_depth\":" << cfg.octree_depth;
+  } else if (cfg.engine != "brute_force") {
     bool batch = cfg.engine == "batch_sap" || cfg.engine == "grid_batch_sap";
     double fraction =
         batch ? BatchOptions(cfg).global_sort_fraction : SapOptions(cfg).global_sort_fraction;
@@ -365,9 +381,10 @@ int main(int argc, char** argv) {
       ->capture_default_str();
   app.add_option("--custom", custom, "a custom 3-D scene instead: N,MOVING,CHURN");
   app.add_option("--engine,-e", cfg.engine,
-                 "segmented_sap, batch_sap, grid_segmented_sap, grid_batch_sap or brute_force")
-      ->check(CLI::IsMember(
-          {"segmented_sap", "batch_sap", "grid_segmented_sap", "grid_batch_sap", "brute_force"}))
+                 "grid_segmented_sap, grid_batch_sap, segmented_sap, batch_sap, dynamic_octree "
+                 "or brute_force")
+      ->check(CLI::IsMember({"segmented_sap", "batch_sap", "grid_segmented_sap", "grid_batch_sap",
+                             "dynamic_octree", "brute_force"}))
       ->capture_default_str();
   app.add_option("--cell-size", cfg.cell_size, "grid engines: cell edge (0: automatic)")
       ->check(CLI::Range(0.0, 1e300))
@@ -404,6 +421,15 @@ int main(int argc, char** argv) {
       ->capture_default_str();
   app.add_option("--chunk", cfg.chunk, "segmented_sap chunk capacity (power of two)")
       ->check(CLI::Range(4u, 4096u))
+      ->capture_default_str();
+  app.add_option("--octree-capacity", cfg.octree_capacity,
+                 "dynamic_octree: objects a leaf holds before it splits")
+      ->check(CLI::Range(1u, 1000000u))
+      ->capture_default_str();
+  app.add_option(
+         "--octree-depth", cfg.octree_depth,
+         "dynamic_octree: halvings below the first root's size past which nodes do not split")
+      ->check(CLI::Range(0u, 2000u))
       ->capture_default_str();
   app.add_option("--repeats,-r", cfg.repeats, "runs per scenario (median of run medians)")
       ->check(CLI::Range(1, 1000))

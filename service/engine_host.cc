@@ -8,6 +8,7 @@
 
 #include "bp/batch_sap.h"
 #include "bp/brute_force.h"
+#include "bp/dynamic_octree.h"
 #include "bp/grid.h"
 #include "bp/segmented_sap.h"
 
@@ -336,11 +337,13 @@ Status Make(const EngineConfig& config, uint64_t max_objects, std::unique_ptr<En
     options.cell_size = config.cell_size.value_or(0.0);
     options.threads = static_cast<unsigned>(config.threads);
     engine = std::make_unique<GridBatchSap<K, T, uint64_t>>(options);
+  } else if (config.algorithm == "dynamic_octree") {
+    engine = std::make_unique<DynamicOctree<K, T, uint64_t>>();
   } else {
     return Status(StatusCode::kInvalidArgument,
                   "unknown engine algorithm '" + config.algorithm +
-                      "' (known: brute_force, segmented_sap, batch_sap, grid_segmented_sap, "
-                      "grid_batch_sap)");
+                      "' (known: brute_force, segmented_sap, batch_sap, dynamic_octree, "
+                      "grid_segmented_sap, grid_batch_sap)");
   }
   *out = std::make_unique<TypedHost<K, T>>(std::move(engine), max_objects);
   return Status::Ok();

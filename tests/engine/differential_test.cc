@@ -288,6 +288,10 @@ template <class C>
 class BatchSapAlwaysLocal : public DifferentialTest<C> {};
 template <class C>
 class BatchSapAlwaysGlobal : public DifferentialTest<C> {};
+template <class C>
+class DynamicOctreeDiff : public DifferentialTest<C> {};
+template <class C>
+class DynamicOctreeTinyNodes : public DifferentialTest<C> {};
 
 template <class C>
 class GridSegmentedDiff : public DifferentialTest<C> {};
@@ -321,6 +325,12 @@ TYPED_TEST_SUITE(SegmentedSapTinyChunksGlobal, SapTinyGlobalShapes);
 using SapPresortedShapes = AllShapes<MakeSegmentedSap<32, 7, 64, 1>>;
 using SapTinyPresortedShapes = AllShapes<MakeSegmentedSap<4, -1, 0, 1>>;
 TYPED_TEST_SUITE(SegmentedSapPresorted, SapPresortedShapes);
+// DynamicOctree: the default options; and one object per node with at most 4 levels, so that
+// trees are as deep as allowed, leaves overfull at the depth limit and many objects straddle.
+using OctreeShapes = AllShapes<MakeDynamicOctree<>>;
+using OctreeTinyShapes = AllShapes<MakeDynamicOctree<1, 4>>;
+TYPED_TEST_SUITE(DynamicOctreeDiff, OctreeShapes);
+TYPED_TEST_SUITE(DynamicOctreeTinyNodes, OctreeTinyShapes);
 TYPED_TEST_SUITE(SegmentedSapTinyChunksPresorted, SapTinyPresortedShapes);
 
 // The grid over either cell: automatic cell size; and cells of size 3 (objects span many cells,
@@ -357,6 +367,8 @@ BP_DIFFERENTIAL_TESTS(GridSegmentedDiff)
 BP_DIFFERENTIAL_TESTS(GridSegmentedTinyCells)
 BP_DIFFERENTIAL_TESTS(GridBatchDiff)
 BP_DIFFERENTIAL_TESTS(GridBatchTinyCells)
+BP_DIFFERENTIAL_TESTS(DynamicOctreeDiff)
+BP_DIFFERENTIAL_TESTS(DynamicOctreeTinyNodes)
 
 }  // namespace
 }  // namespace bp::test

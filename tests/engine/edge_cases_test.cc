@@ -71,16 +71,24 @@ template <class C>
 class SegmentedSapTinyEdge : public EdgeCaseTest<C> {};
 template <class C>
 class BatchSapEdge : public EdgeCaseTest<C> {};
+template <class C>
+class DynamicOctreeEdge : public EdgeCaseTest<C> {};
+template <class C>
+class DynamicOctreeTinyEdge : public EdgeCaseTest<C> {};
 using BruteForceEdgeShapes = EdgeShapes<MakeBruteForce>;
 using SapEdgeShapes = EdgeShapes<MakeSegmentedSap<32, 7>>;
 using SapTinyEdgeShapes = EdgeShapes<MakeSegmentedSap<4, -1>>;
 using BatchEdgeShapes = EdgeShapes<MakeBatchSap<7>>;
+using OctreeEdgeShapes = EdgeShapes<MakeDynamicOctree<>>;
+using OctreeTinyEdgeShapes = EdgeShapes<MakeDynamicOctree<1, 4>>;
 TYPED_TEST_SUITE(BruteForceEdge, BruteForceEdgeShapes);
 TYPED_TEST_SUITE(BatchSapEdge, BatchEdgeShapes);
 TYPED_TEST_SUITE(SegmentedSapEdge, SapEdgeShapes);
 TYPED_TEST_SUITE(SegmentedSapTinyEdge, SapTinyEdgeShapes);
+TYPED_TEST_SUITE(DynamicOctreeEdge, OctreeEdgeShapes);
+TYPED_TEST_SUITE(DynamicOctreeTinyEdge, OctreeTinyEdgeShapes);
 
-// The body of each edge case, shared by the three suites.
+// The body of each edge case, shared by the suites.
 #define BP_EDGE_CASES(Suite)                                                                      \
   TYPED_TEST(Suite, TouchingFacesEdgesAndCornersOverlap) {                                        \
     using Coord = typename TestFixture::T;                                                        \
@@ -295,11 +303,15 @@ BP_BULK_CASE(BruteForceEdge)
 BP_BULK_CASE(SegmentedSapEdge)
 BP_BULK_CASE(SegmentedSapTinyEdge)
 BP_BULK_CASE(BatchSapEdge)
+BP_BULK_CASE(DynamicOctreeEdge)
+BP_BULK_CASE(DynamicOctreeTinyEdge)
 
 BP_EDGE_CASES(BruteForceEdge)
 BP_EDGE_CASES(SegmentedSapEdge)
 BP_EDGE_CASES(SegmentedSapTinyEdge)
 BP_EDGE_CASES(BatchSapEdge)
+BP_EDGE_CASES(DynamicOctreeEdge)
+BP_EDGE_CASES(DynamicOctreeTinyEdge)
 
 // A fast mover's min passes its own max and crosses chunk boundaries before the max follows:
 // the paper's R set must absorb it (white-box: the counter proves the path ran).

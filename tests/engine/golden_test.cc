@@ -10,6 +10,7 @@
 
 #include "bp/batch_sap.h"
 #include "bp/brute_force.h"
+#include "bp/dynamic_octree.h"
 #include "bp/grid.h"
 #include "bp/scene_runner.h"
 #include "bp/segmented_sap.h"
@@ -180,6 +181,37 @@ TEST(GoldenGrid, LargeRows) {
     ExpectGoldenGrid<GridSegmentedSap<3, float>>(name);
     ExpectGoldenGrid<GridBatchSap<3, float>>(name);
   }
+}
+
+template <int K, Coordinate T>
+void ExpectGoldenOctree(const char* name, const DynamicOctreeOptions& options = {}) {
+  const GoldenScenario* g = FindGolden(name);
+  ASSERT_NE(g, nullptr);
+  DynamicOctree<K, T> engine(options);
+  ExpectGolden<K, T>(engine, *g);
+}
+
+TEST(GoldenDynamicOctree, S2aFloat) { ExpectGoldenOctree<3, float>("S2a"); }
+TEST(GoldenDynamicOctree, S2aDouble) { ExpectGoldenOctree<3, double>("S2a"); }
+TEST(GoldenDynamicOctree, S2aInt32) { ExpectGoldenOctree<3, int32_t>("S2a"); }
+TEST(GoldenDynamicOctree, S2bFloat) { ExpectGoldenOctree<3, float>("S2b"); }
+TEST(GoldenDynamicOctree, S2cDouble) { ExpectGoldenOctree<3, double>("S2c"); }
+TEST(GoldenDynamicOctree, S1_10kFloat) { ExpectGoldenOctree<3, float>("S1-10k"); }
+TEST(GoldenDynamicOctree, S1_10kInt32) { ExpectGoldenOctree<3, int32_t>("S1-10k"); }
+TEST(GoldenDynamicOctree, Planar2DFloat) { ExpectGoldenOctree<2, float>("2-D"); }
+TEST(GoldenDynamicOctree, Planar2DDouble) { ExpectGoldenOctree<2, double>("2-D"); }
+
+// One object per node, at most 6 levels: deep trees, overfull leaves at the depth limit.
+TEST(GoldenDynamicOctree, TinyNodesS2c) {
+  DynamicOctreeOptions options;
+  options.max_objects_per_node = 1;
+  options.max_depth = 6;
+  ExpectGoldenOctree<3, float>("S2c", options);
+}
+
+TEST(GoldenDynamicOctree, LargeRows) {
+  if (!LongTests()) GTEST_SKIP() << "set BP_LONG_TESTS=1 for S1-100k, S1-200k, S3, S4";
+  for (const char* name : {"S4", "S1-100k", "S3", "S1-200k"}) ExpectGoldenOctree<3, float>(name);
 }
 
 TEST(GoldenBruteForce, S2aFloat) {

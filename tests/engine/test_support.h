@@ -16,6 +16,7 @@
 #include "bp/box.h"
 #include "bp/broadphase.h"
 #include "bp/brute_force.h"
+#include "bp/dynamic_octree.h"
 #include "bp/grid.h"
 #include "bp/segmented_sap.h"
 
@@ -149,6 +150,21 @@ struct MakeGrid {
   static std::string Name() {
     return std::string(kBatch ? "GridBatchSap" : "GridSegmentedSap") + "_s" +
            std::to_string(kCellTenths) + "_m" + std::to_string(kMaxCells);
+  }
+};
+
+/// DynamicOctree with the given node capacity and maximum depth (0: the defaults).
+template <uint32_t kCapacity = 0, uint32_t kMaxDepth = 0>
+struct MakeDynamicOctree {
+  template <int K, class T>
+  static std::unique_ptr<Broadphase<K, T>> Create() {
+    DynamicOctreeOptions options;
+    if (kCapacity != 0) options.max_objects_per_node = kCapacity;
+    if (kMaxDepth != 0) options.max_depth = kMaxDepth;
+    return std::make_unique<DynamicOctree<K, T>>(options);
+  }
+  static std::string Name() {
+    return "DynamicOctree_c" + std::to_string(kCapacity) + "_d" + std::to_string(kMaxDepth);
   }
 };
 

@@ -1,7 +1,8 @@
 // The validators must notice broken invariants: corrupt a SegmentedSap core through its test
 // peer (checkpoints, sort order, candidate set, chunk links), or a BatchSap core (sort order,
-// positions, stale coordinates, candidate set, a record left pending), and expect an Internal
-// status that names the problem; undo the corruption and expect ok again.
+// positions, stale coordinates, candidate set, a record left pending), or a DynamicOctree core
+// (stale entries, child bounds, subtree counts, free list, adjacency, candidate set), and expect
+// an Internal status that names the problem; undo the corruption and expect ok again.
 #include <cstdint>
 #include <string>
 #include <utility>
@@ -10,6 +11,7 @@
 #include <gtest/gtest.h>
 
 #include "bp/batch_sap.h"
+#include "bp/dynamic_octree.h"
 #include "bp/segmented_sap.h"
 
 namespace bp::detail {
@@ -54,6 +56,20 @@ struct BatchSapTestPeer {
     return ax.pos[ax.buf[ax.begin].ref];
   }
   static uint8_t& State(Core& core, uint32_t h) { return core.state_[h]; }
+  static PairTracker& Tracker(Core& core) { return core.tracker_; }
+};
+
+struct DynamicOctreeTestPeer {
+  using Core = DynamicOctreeCore<2, float>;
+  static Box<2, float>& EntryBox(Core& core, uint32_t h) {
+    return core.nodes_[core.node_of_[h]].objects[core.slot_[h]].box;
+  }
+  static Box<2, float>& BoxOf(Core& core, uint32_t h) { return core.boxes_[h]; }
+  static uint32_t NodeOf(Core& core, uint32_t h) { return core.node_of_[h]; }
+  static double& Lo(Core& core, uint32_t node, size_t axis) { return core.nodes_[node].lo[axis]; }
+  static uint32_t& Count(Core& core, uint32_t node) { return core.nodes_[node].count; }
+  static std::vector<uint32_t>& FreeNodes(Core& core) { return core.free_nodes_; }
+  static std::vector<uint32_t>& Adj(Core& core, uint32_t h) { return core.adj_[h]; }
   static PairTracker& Tracker(Core& core) { return core.tracker_; }
 };
 
@@ -174,6 +190,86 @@ TEST(BatchSapValidate, NoticesMissingSpuriousAndPendingState) {
   Peer::State(core, 5) = live + 1;  // a record left pending
   ExpectBroken(core, "pending");
   Peer::State(core, 5) = live;
+  EXPECT_TRUE(core.Validate().ok());
+}
+
+// The lattice with 4 objects per node: a root split two levels deep.
+DynamicOctreeCore<2, float> MakeOctreeCore() {
+  DynamicOctreeOptions options;
+  options.max_objects_per_node = 4;
+  DynamicOctreeCore<2, float> core(options);
+  core.Apply({}, {}, LatticeInserts());
+  return core;
+}
+
+TEST(DynamicOctreeValidate, NoticesStaleEntriesAndObjectsOutsideTheirNode) {
+  auto core = MakeOctreeCore();
+  ASSERT_TRUE(core.Validate().ok()) << core.Validate().ToString();
+  ASSERT_GT(core.depth(), 1);
+  using Peer = DynamicOctreeTestPeer;
+  Box<2, float> saved = Peer::EntryBox(core, 0);
+  Peer::EntryBox(core, 0).hi[0] += 0.25f;
+  ExpectBroken(core, "stale box");
+  Peer::EntryBox(core, 0) = saved;
+  EXPECT_TRUE(core.Validate().ok());
+  // The same move in the entry and the box: outside the node (the root starts at 0).
+  Peer::EntryBox(core, 0).lo[0] = Peer::BoxOf(core, 0).lo[0] = -1;
+  ExpectBroken(core, "outside its node");
+  Peer::EntryBox(core, 0) = Peer::BoxOf(core, 0) = saved;
+  EXPECT_TRUE(core.Validate().ok());
+}
+
+TEST(DynamicOctreeValidate, NoticesBadChildBoundsCountsAndFreeList) {
+  auto core = MakeOctreeCore();
+  using Peer = DynamicOctreeTestPeer;
+  uint32_t leaf = Peer::NodeOf(core, 0);
+  double& lo = Peer::Lo(core, leaf, 1);
+  double saved = lo;
+  lo = saved - 0.5;
+  ExpectBroken(core, "octant");
+  lo = saved;
+  EXPECT_TRUE(core.Validate().ok());
+  Peer::Count(core, leaf) += 1;
+  ExpectBroken(core, "count");
+  Peer::Count(core, leaf) -= 1;
+  EXPECT_TRUE(core.Validate().ok());
+  Peer::FreeNodes(core).push_back(leaf);  // a node in use on the free list
+  ExpectBroken(core, "free list");
+  Peer::FreeNodes(core).pop_back();
+  EXPECT_TRUE(core.Validate().ok());
+}
+
+TEST(DynamicOctreeValidate, NoticesAdjacencyAndPairErrors) {
+  auto core = MakeOctreeCore();
+  using Peer = DynamicOctreeTestPeer;
+  PairTracker& tracker = Peer::Tracker(core);
+  ASSERT_TRUE(tracker.Contains(0, 1));
+  tracker.Remove(0, 1);
+  ExpectBroken(core, "adjacency pair not in the tracker");
+  tracker.Add(0, 1);
+  EXPECT_TRUE(core.Validate().ok());
+  Peer::Adj(core, 0).push_back(1);
+  ExpectBroken(core, "duplicate");
+  Peer::Adj(core, 0).pop_back();
+  // A pair missing from both the adjacency and the tracker: the recomputation notices.
+  std::vector<uint32_t> adj0 = Peer::Adj(core, 0), adj1 = Peer::Adj(core, 1);
+  std::erase(Peer::Adj(core, 0), 1u);
+  std::erase(Peer::Adj(core, 1), 0u);
+  tracker.Remove(0, 1);
+  ExpectBroken(core, "missing");
+  Peer::Adj(core, 0) = adj0;
+  Peer::Adj(core, 1) = adj1;
+  tracker.Add(0, 1);
+  // A spurious pair in both.
+  ASSERT_FALSE(tracker.Contains(0, 39));
+  tracker.Add(0, 39);
+  Peer::Adj(core, 0).push_back(39);
+  Peer::Adj(core, 39).push_back(0);
+  ExpectBroken(core, "spurious");
+  tracker.Remove(0, 39);
+  Peer::Adj(core, 0).pop_back();
+  Peer::Adj(core, 39).pop_back();
+  tracker.DrainChanges([](uint32_t, uint32_t, bool) {});
   EXPECT_TRUE(core.Validate().ok());
 }
 

@@ -121,6 +121,7 @@ void RunScene(const char* algorithm) {
 TEST(Daemon, SceneMatchesOracleFrameByFrame3D) { RunScene<3>("segmented_sap"); }
 TEST(Daemon, SceneMatchesOracleFrameByFrame2D) { RunScene<2>("segmented_sap"); }
 TEST(Daemon, BatchSapSceneMatchesOracleFrameByFrame3D) { RunScene<3>("batch_sap"); }
+TEST(Daemon, DynamicOctreeSceneMatchesOracleFrameByFrame3D) { RunScene<3>("dynamic_octree"); }
 TEST(Daemon, SceneMatchesOracleWithBruteForceEngine) { RunScene<3>("brute_force"); }
 TEST(Daemon, GridSceneMatchesOracleFrameByFrame3D) { RunScene<3>("grid_segmented_sap"); }
 TEST(Daemon, GridBatchSceneMatchesOracleFrameByFrame2D) { RunScene<2>("grid_batch_sap"); }

@@ -179,8 +179,8 @@ void RandomBatches(const char* algorithm, CoordinateType coordinate, uint64_t se
 
 TEST(EngineHost, RandomBatchesMatchTheOracle) {
   for (uint64_t seed = 1; seed <= 3; ++seed) {
-    for (const char* algorithm :
-         {"segmented_sap", "batch_sap", "brute_force", "grid_segmented_sap", "grid_batch_sap"}) {
+    for (const char* algorithm : {"segmented_sap", "batch_sap", "dynamic_octree", "brute_force",
+                                  "grid_segmented_sap", "grid_batch_sap"}) {
       for (CoordinateType c :
            {CoordinateType::kFloat, CoordinateType::kDouble, CoordinateType::kInt32}) {
         RandomBatches<3>(algorithm, c, seed);
