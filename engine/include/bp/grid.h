@@ -359,7 +359,7 @@ class GridCore {
     if (large_count_ != 0) {
       BeginLargeCandidates();
       AddLargeCandidates(h);
-      TestLargeCandidates(h);
+      TestLargeCandidates(h, nullptr);
     }
   }
 
@@ -374,7 +374,7 @@ class GridCore {
     if (large_count_ != 0) {
       BeginLargeCandidates();
       AddLargeCandidates(h);
-      TestLargeCandidates(h);  // dead: every listed pair goes
+      TestLargeCandidates(h, &boxes_[h]);  // dead: every listed pair goes
     }
     LeaveCells(h);
   }
@@ -382,6 +382,7 @@ class GridCore {
   void UpdateObject(uint32_t h, const BoxType& box) {
     Object& o = objects_[h];
     BP_ASSERT(o.state == State::kLive);
+    const BoxType before = boxes_[h];
     boxes_[h] = box;
     CellCoord lo, hi;
     RangeOf(box, &lo, &hi);
@@ -396,7 +397,7 @@ class GridCore {
       if (large_count_ != 0) {
         BeginLargeCandidates();
         AddLargeCandidates(h);
-        TestLargeCandidates(h);
+        TestLargeCandidates(h, nullptr);
       }
       return;
     }
@@ -426,7 +427,7 @@ class GridCore {
       Migrate(h, lo, hi);
       if (with_large) AddLargeCandidates(h);
     }
-    if (with_large) TestLargeCandidates(h);
+    if (with_large) TestLargeCandidates(h, &before);
   }
 
   // A small object's new cell range differs: update it in the cells it keeps, insert it into
@@ -721,13 +722,20 @@ class GridCore {
     }
   }
   // Brings the pairs of small object h with the candidates up to date (h dead: removes them).
-  // A candidate that changed this query is rescanned afterwards, which settles its pairs anyway.
-  void TestLargeCandidates(uint32_t h) {
+  // `before` is h's box at the last query (nullptr: h was in no partner set), which tells, for a
+  // candidate unchanged this query, whether h is its partner without a look-up; a candidate
+  // that changed is rescanned afterwards, which settles its pairs anyway.
+  void TestLargeCandidates(uint32_t h, const BoxType* before) {
     const bool alive = objects_[h].state == State::kLive;
     for (uint32_t l : candidates_) {
       Large& lg = large_[l];
+      const BoxType& lbox = boxes_[lg.handle];
       ++tests_;
-      bool now = alive && Overlaps(boxes_[h], boxes_[lg.handle]);
+      bool now = alive && Overlaps(boxes_[h], lbox);
+      if (!lg.changed) {
+        bool had = before != nullptr && Overlaps(*before, lbox);
+        if (had == now) continue;
+      }
       if (now ? lg.partners.Insert(h) : lg.partners.Erase(h)) Witness(h, lg.handle, now);
     }
   }
