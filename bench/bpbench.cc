@@ -11,6 +11,7 @@
 //   bpbench --threshold-sweep [--engine E]    local vs global sort over the moving fraction
 //   bpbench --figure 8|9                      the paper's single-cell figures, every cell variant
 //   bpbench --engine grid_segmented_sap|grid_batch_sap [--cell-size X | --objects-per-cell N]
+//   bpbench --figure 10|11                    the paper's multi-cell figures: grids and octree
 #include <algorithm>
 #include <cinttypes>
 #include <cstdint>
@@ -333,6 +334,43 @@ std::vector<Config> FigureVariants(const Config& base) {
   return out;
 }
 
+// The paper's multi-cell figures (section 4.2), through the grid over either cell and the octree:
+// 10: 100k objects, 10k moving, inserts = erases per frame swept from 0 to 4000;
+// 11: 10% moving, 0.5% inserts and 0.5% erases per frame, n swept from 10k to 200k.
+void GridFigure(int figure, const Config& base) {
+  int frames = base.frames > 0 ? base.frames : 50;
+  std::vector<SceneParams> points;
+  if (figure == 10) {
+    for (uint32_t c : {0u, 50u, 100u, 250u, 500u, 1000u, 2000u, 4000u}) {
+      SceneParams p;
+      p.n = 100000;
+      p.moving = 10000;
+      p.churn = c;
+      points.push_back(p);
+    }
+  } else {
+    for (uint32_t n : {10000u, 25000u, 50000u, 100000u, 150000u, 200000u}) {
+      SceneParams p;
+      p.n = n;
+      p.moving = n / 10;
+      p.churn = n / 200;
+      points.push_back(p);
+    }
+  }
+  const std::string scenario = "fig" + std::to_string(figure);
+  for (const SceneParams& p : points) {
+    for (const char* engine : {"grid_segmented_sap", "grid_batch_sap", "dynamic_octree"}) {
+      Config cfg = base;
+      cfg.engine = engine;
+      cfg.variant = engine;
+      std::string label = scenario + " n=" + std::to_string(p.n) +
+                          " churn=" + std::to_string(p.churn) + " " + engine;
+      Result r = Run(p, frames, cfg, label);
+      PrintJson(scenario, p, frames, cfg, r, nullptr, "");
+    }
+  }
+}
+
 // The paper's single-cell figures (section 4.1), 3000 objects (or `objects`), no subdivision:
 //  8: one insert and one erase per frame, moving fraction swept from 5% to 100%;
 //  9: 5% moving (150 of 3000), inserts = erases per frame swept from 1 to 100.
@@ -439,8 +477,10 @@ int main(int argc, char** argv) {
   app.add_flag("--threshold-sweep", sweep, "measure local vs global sort over moving fractions");
   int figure = 0;
   uint32_t figure_objects = 3000;
-  app.add_option("--figure", figure, "the paper's figure 8 or 9 (single cell, every cell variant)")
-      ->check(CLI::IsMember({8, 9}));
+  app.add_option("--figure", figure,
+                 "the paper's figure 8 or 9 (single cell, every cell variant), 10 or 11 (grid over "
+                 "either cell and the octree)")
+      ->check(CLI::IsMember({8, 9, 10, 11}));
   app.add_option("--figure-objects", figure_objects, "objects of the figure's scene (paper: 3000)")
       ->check(CLI::Range(20u, 10000000u))
       ->capture_default_str();
@@ -451,6 +491,10 @@ int main(int argc, char** argv) {
 
   if (sweep) {
     ThresholdSweep(cfg, sweep_sizes);
+    return 0;
+  }
+  if (figure >= 10) {
+    GridFigure(figure, cfg);
     return 0;
   }
   if (figure != 0) {
