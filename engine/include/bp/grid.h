@@ -56,6 +56,7 @@
 #include "bp/box.h"
 #include "bp/broadphase.h"
 #include "bp/detail/assert.h"
+#include "bp/detail/cell_space.h"
 #include "bp/detail/flat_map.h"
 #include "bp/detail/flat_set.h"
 #include "bp/detail/keyed_engine.h"
@@ -156,11 +157,9 @@ class GridCore {
 
  private:
   static constexpr uint32_t kNone = ~uint32_t{0};
-  // Cell coordinates: b bits per axis, so that K of them pack into 63 bits (a hash key that is
-  // never FlatMap's all-ones empty marker).
-  static constexpr int kBits = 63 / kDim;
-  static constexpr int64_t kLimit = int64_t{1} << (kBits - 1);
-  using CellCoord = std::array<int64_t, kAxes>;
+  using Space = CellSpace<kDim>;
+  using CellCoord = typename Space::Coord;
+  static constexpr int64_t kLimit = Space::kLimit;
 
   struct CellRef {
     uint32_t cell;
@@ -223,39 +222,6 @@ class GridCore {
     }
     return n;
   }
-  static uint64_t Pack(const CellCoord& c) {
-    uint64_t key = 0;
-    for (size_t a = 0; a < kAxes; ++a) {
-      key |= static_cast<uint64_t>(c[a] + kLimit) << (static_cast<uint64_t>(kBits) * a);
-    }
-    return key;
-  }
-  static bool Contains(const CellCoord& lo, const CellCoord& hi, const CellCoord& c) {
-    for (size_t a = 0; a < kAxes; ++a) {
-      if (c[a] < lo[a] || c[a] > hi[a]) return false;
-    }
-    return true;
-  }
-  // Index of c in the row-major order of the range (axis 0 fastest).
-  static uint32_t RowMajor(const CellCoord& lo, const CellCoord& hi, const CellCoord& c) {
-    uint64_t i = 0;
-    for (size_t a = kAxes; a-- > 0;) {
-      i = i * static_cast<uint64_t>(hi[a] - lo[a] + 1) + static_cast<uint64_t>(c[a] - lo[a]);
-    }
-    return static_cast<uint32_t>(i);
-  }
-  // Calls f(coord) for every cell of a (small) range in row-major order.
-  template <class F>
-  static void ForEachCoord(const CellCoord& lo, const CellCoord& hi, F&& f) {
-    CellCoord c = lo;
-    for (;;) {
-      f(c);
-      size_t a = 0;
-      for (; a < kAxes && c[a] == hi[a]; ++a) c[a] = lo[a];
-      if (a == kAxes) return;
-      ++c[a];
-    }
-  }
   // Calls f(cell index) for every existing cell in a range of any size: by coordinates when the
   // range has fewer cells than the grid, else by walking the cells in use.
   template <class F>
@@ -268,13 +234,13 @@ class GridCore {
       n *= w;
     }
     if (small) {
-      ForEachCoord(lo, hi, [&](const CellCoord& c) {
-        if (const uint32_t* idx = cell_of_.Find(Pack(c))) f(*idx);
+      Space::ForEachCoord(lo, hi, [&](const CellCoord& c) {
+        if (const uint32_t* idx = cell_of_.Find(Space::Pack(c))) f(*idx);
       });
       return;
     }
     for (uint32_t idx = 0; idx < cells_.size(); ++idx) {
-      if (cells_[idx]->in_use && Contains(lo, hi, cells_[idx]->coord)) f(idx);
+      if (cells_[idx]->in_use && Space::Contains(lo, hi, cells_[idx]->coord)) f(idx);
     }
   }
 
@@ -438,10 +404,10 @@ class GridCore {
     const uint32_t refs = AllocRefs(n);
     Object& o = objects_[h];
     uint32_t i = 0;
-    ForEachCoord(lo, hi, [&](const CellCoord& c) {
+    Space::ForEachCoord(lo, hi, [&](const CellCoord& c) {
       CellRef ref;
-      if (Contains(o.lo, o.hi, c)) {
-        ref = refs_[o.refs + RowMajor(o.lo, o.hi, c)];
+      if (Space::Contains(o.lo, o.hi, c)) {
+        ref = refs_[o.refs + Space::RowMajor(o.lo, o.hi, c)];
         cells_[ref.cell]->updates.push_back({ref.local, box});
       } else {
         ref.cell = CellAt(c);
@@ -454,9 +420,9 @@ class GridCore {
       refs_[refs + i++] = ref;
     });
     uint32_t j = 0;
-    ForEachCoord(o.lo, o.hi, [&](const CellCoord& c) {
+    Space::ForEachCoord(o.lo, o.hi, [&](const CellCoord& c) {
       CellRef ref = refs_[o.refs + j++];
-      if (Contains(lo, hi, c)) return;
+      if (Space::Contains(lo, hi, c)) return;
       GridCell& cell = *cells_[ref.cell];
       cell.erases.push_back(ref.local);
       --cell.members;
@@ -473,7 +439,7 @@ class GridCore {
     const uint32_t n = static_cast<uint32_t>(CellCount(lo, hi));
     const uint32_t refs = AllocRefs(n);
     uint32_t i = 0;
-    ForEachCoord(lo, hi, [&](const CellCoord& c) {
+    Space::ForEachCoord(lo, hi, [&](const CellCoord& c) {
       uint32_t idx = CellAt(c);
       GridCell& cell = *cells_[idx];
       uint32_t local = AllocLocal(cell, h);
@@ -508,7 +474,7 @@ class GridCore {
   // The cell at c, created (or recycled) if absent; a new cell lists the large objects over it.
   uint32_t CellAt(const CellCoord& c) {
     bool inserted = false;
-    uint64_t key = Pack(c);
+    uint64_t key = Space::Pack(c);
     uint32_t& slot = cell_of_.FindOrInsert(key, kNone, &inserted);
     if (!inserted) return slot;
     uint32_t idx;
@@ -526,7 +492,8 @@ class GridCore {
     cell.in_use = true;
     for (uint32_t l = 0; l < large_.size(); ++l) {
       uint32_t lh = large_[l].handle;
-      if (lh != kNone && Contains(objects_[lh].lo, objects_[lh].hi, c)) cell.large.push_back(l);
+      if (lh != kNone && Space::Contains(objects_[lh].lo, objects_[lh].hi, c))
+        cell.large.push_back(l);
     }
     return idx;
   }
@@ -884,106 +851,6 @@ class GridCore {
   bool global_ = false, rebuilt_ = false;
 };
 
-template <class Cell>
-Status GridCore<Cell>::Validate() const {
-  auto fail = [](const std::string& what) {
-    return Status(StatusCode::kInternal, std::string(kName) + ": " + what);
-  };
-  std::vector<uint32_t> live;
-  size_t large_live = 0;
-  for (uint32_t h = 0; h < objects_.size(); ++h) {
-    const Object& o = objects_[h];
-    if (o.state != State::kLive) continue;
-    live.push_back(h);
-    CellCoord lo, hi;
-    RangeOf(boxes_[h], &lo, &hi);
-    if (lo != o.lo || hi != o.hi) return fail("object " + std::to_string(h) + ": stale cell range");
-    bool is_large = CellCount(lo, hi) > options_.max_cells_per_object;
-    if (is_large != (o.large != kNone)) return fail("object " + std::to_string(h) + ": wrong set");
-    if (is_large) {
-      ++large_live;
-      if (o.large >= large_.size() || large_[o.large].handle != h) return fail("large index");
-      continue;
-    }
-    if (o.nrefs != CellCount(lo, hi)) return fail("object " + std::to_string(h) + ": ref count");
-    uint32_t i = 0;
-    bool ok = true;
-    ForEachCoord(lo, hi, [&](const CellCoord& c) {
-      CellRef ref = refs_[o.refs + i++];
-      ok = ok && ref.cell < cells_.size() && cells_[ref.cell]->in_use &&
-           cells_[ref.cell]->coord == c && ref.local < cells_[ref.cell]->global.size() &&
-           cells_[ref.cell]->global[ref.local] == h;
-    });
-    if (!ok) return fail("object " + std::to_string(h) + ": cell refs astray");
-  }
-  if (live.size() != live_) return fail("live count differs");
-  if (large_live != large_count_) return fail("large count differs");
-  if (!touched_.empty() || !changed_large_.empty()) return fail("work left after a query");
-
-  FlatMap<uint64_t, uint32_t> count;
-  size_t in_use = 0;
-  for (uint32_t idx = 0; idx < cells_.size(); ++idx) {
-    const GridCell& c = *cells_[idx];
-    if (!c.in_use) continue;
-    ++in_use;
-    const uint32_t* found = cell_of_.Find(c.key);
-    if (c.key != Pack(c.coord) || found == nullptr || *found != idx) return fail("cell hash");
-    size_t members = 0;
-    for (uint32_t g : c.global) members += g != kNone ? 1 : 0;
-    if (members != c.members || members != c.core.live() || members == 0) {
-      return fail("cell members differ");
-    }
-    if (c.touched || !c.erases.empty() || !c.updates.empty() || !c.inserts.empty()) {
-      return fail("cell left with buffered operations");
-    }
-    for (uint32_t l = 0; l < large_.size(); ++l) {
-      uint32_t lh = large_[l].handle;
-      bool covers = lh != kNone && Contains(objects_[lh].lo, objects_[lh].hi, c.coord);
-      bool listed = std::count(c.large.begin(), c.large.end(), l) == 1;
-      if (covers != listed || std::count(c.large.begin(), c.large.end(), l) > 1) {
-        return fail("cell's large list");
-      }
-    }
-    if (Status s = c.core.Validate(); !s.ok()) return fail("cell: " + s.message());
-    c.core.tracker().ForEachOverlap([&](uint32_t a, uint32_t b) {
-      ++count.FindOrInsert(HandlePair(c.global[a], c.global[b]), 0);
-    });
-  }
-  if (in_use != cell_of_.size()) return fail("cells in the hash differ from cells in use");
-  for (uint32_t l = 0; l < large_.size(); ++l) {
-    const Large& lg = large_[l];
-    if (lg.handle == kNone) {
-      if (!lg.partners.empty()) return fail("free large slot with partners");
-      continue;
-    }
-    size_t overlapping = 0;
-    for (uint32_t g : live) overlapping += g != lg.handle && Overlaps(boxes_[g], boxes_[lg.handle]);
-    if (overlapping != lg.partners.size()) return fail("large partners differ");
-    bool ok = true;
-    lg.partners.ForEach([&](uint32_t x) {
-      ok = ok && objects_[x].state == State::kLive && Overlaps(boxes_[x], boxes_[lg.handle]);
-      if (objects_[x].large != kNone) {
-        ok = ok && large_[objects_[x].large].partners.Contains(lg.handle);
-        if (x < lg.handle) return;  // a large pair counts once
-      }
-      ++count.FindOrInsert(HandlePair(x, lg.handle), 0);
-    });
-    if (!ok) return fail("large partner not overlapping or not mutual");
-  }
-  size_t multi = 0;
-  bool ok = true;
-  count.ForEach([&](uint64_t p, uint32_t n) {
-    ok = ok && tracker_.Contains(PairFirst(p), PairSecond(p));
-    const uint32_t* e = extra_.Find(p);
-    ok = ok && (n == 1 ? e == nullptr : (e != nullptr && *e == n - 1));
-    multi += n > 1;
-  });
-  if (!ok || count.size() != tracker_.overlaps() || multi != extra_.size()) {
-    return fail("witness counts differ from the cells");
-  }
-  return CheckOverlapSet(boxes_, std::move(live), tracker_, kName);
-}
-
 }  // namespace detail
 
 /// The grid over segmented-interval-list cells (few movers, few events per cell).
@@ -997,3 +864,5 @@ using GridSegmentedSapOptions = GridOptions<SegmentedSapOptions>;
 using GridBatchSapOptions = GridOptions<BatchSapOptions>;
 
 }  // namespace bp
+
+#include "bp/detail/grid_validate.h"  // NOLINT(build/include_order): defines Validate

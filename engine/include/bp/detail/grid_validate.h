@@ -1,0 +1,121 @@
+// GridCore::Validate: every invariant of bp/grid.h recomputed from scratch (object references
+// against their ranges and the cells, cell membership and hash, large-object lists and partner
+// sets, witness counts against the cells' own overlap sets, the overlap set against a sort and
+// sweep). O(n log n + cells x large objects + n x large objects); run after every query when
+// BP_VALIDATE is set.
+#pragma once
+
+#include <algorithm>
+#include <cstdint>
+#include <string>
+#include <utility>
+#include <vector>
+
+#include "bp/detail/flat_map.h"
+#include "bp/detail/sweep.h"
+#include "bp/grid.h"
+
+namespace bp::detail {
+
+template <class Cell>
+Status GridCore<Cell>::Validate() const {
+  auto fail = [](const std::string& what) {
+    return Status(StatusCode::kInternal, std::string(kName) + ": " + what);
+  };
+  std::vector<uint32_t> live;
+  size_t large_live = 0;
+  for (uint32_t h = 0; h < objects_.size(); ++h) {
+    const Object& o = objects_[h];
+    if (o.state != State::kLive) continue;
+    live.push_back(h);
+    CellCoord lo, hi;
+    RangeOf(boxes_[h], &lo, &hi);
+    if (lo != o.lo || hi != o.hi) return fail("object " + std::to_string(h) + ": stale cell range");
+    bool is_large = CellCount(lo, hi) > options_.max_cells_per_object;
+    if (is_large != (o.large != kNone)) return fail("object " + std::to_string(h) + ": wrong set");
+    if (is_large) {
+      ++large_live;
+      if (o.large >= large_.size() || large_[o.large].handle != h) return fail("large index");
+      continue;
+    }
+    if (o.nrefs != CellCount(lo, hi)) return fail("object " + std::to_string(h) + ": ref count");
+    uint32_t i = 0;
+    bool ok = true;
+    Space::ForEachCoord(lo, hi, [&](const CellCoord& c) {
+      CellRef ref = refs_[o.refs + i++];
+      ok = ok && ref.cell < cells_.size() && cells_[ref.cell]->in_use &&
+           cells_[ref.cell]->coord == c && ref.local < cells_[ref.cell]->global.size() &&
+           cells_[ref.cell]->global[ref.local] == h;
+    });
+    if (!ok) return fail("object " + std::to_string(h) + ": cell refs astray");
+  }
+  if (live.size() != live_) return fail("live count differs");
+  if (large_live != large_count_) return fail("large count differs");
+  if (!touched_.empty() || !changed_large_.empty()) return fail("work left after a query");
+
+  FlatMap<uint64_t, uint32_t> count;
+  size_t in_use = 0;
+  for (uint32_t idx = 0; idx < cells_.size(); ++idx) {
+    const GridCell& c = *cells_[idx];
+    if (!c.in_use) continue;
+    ++in_use;
+    const uint32_t* found = cell_of_.Find(c.key);
+    if (c.key != Space::Pack(c.coord) || found == nullptr || *found != idx)
+      return fail("cell hash");
+    size_t members = 0;
+    for (uint32_t g : c.global) members += g != kNone ? 1 : 0;
+    if (members != c.members || members != c.core.live() || members == 0) {
+      return fail("cell members differ");
+    }
+    if (c.touched || !c.erases.empty() || !c.updates.empty() || !c.inserts.empty()) {
+      return fail("cell left with buffered operations");
+    }
+    for (uint32_t l = 0; l < large_.size(); ++l) {
+      uint32_t lh = large_[l].handle;
+      bool covers = lh != kNone && Space::Contains(objects_[lh].lo, objects_[lh].hi, c.coord);
+      bool listed = std::count(c.large.begin(), c.large.end(), l) == 1;
+      if (covers != listed || std::count(c.large.begin(), c.large.end(), l) > 1) {
+        return fail("cell's large list");
+      }
+    }
+    if (Status s = c.core.Validate(); !s.ok()) return fail("cell: " + s.message());
+    c.core.tracker().ForEachOverlap([&](uint32_t a, uint32_t b) {
+      ++count.FindOrInsert(HandlePair(c.global[a], c.global[b]), 0);
+    });
+  }
+  if (in_use != cell_of_.size()) return fail("cells in the hash differ from cells in use");
+  for (uint32_t l = 0; l < large_.size(); ++l) {
+    const Large& lg = large_[l];
+    if (lg.handle == kNone) {
+      if (!lg.partners.empty()) return fail("free large slot with partners");
+      continue;
+    }
+    size_t overlapping = 0;
+    for (uint32_t g : live) overlapping += g != lg.handle && Overlaps(boxes_[g], boxes_[lg.handle]);
+    if (overlapping != lg.partners.size()) return fail("large partners differ");
+    bool ok = true;
+    lg.partners.ForEach([&](uint32_t x) {
+      ok = ok && objects_[x].state == State::kLive && Overlaps(boxes_[x], boxes_[lg.handle]);
+      if (objects_[x].large != kNone) {
+        ok = ok && large_[objects_[x].large].partners.Contains(lg.handle);
+        if (x < lg.handle) return;  // a large pair counts once
+      }
+      ++count.FindOrInsert(HandlePair(x, lg.handle), 0);
+    });
+    if (!ok) return fail("large partner not overlapping or not mutual");
+  }
+  size_t multi = 0;
+  bool ok = true;
+  count.ForEach([&](uint64_t p, uint32_t n) {
+    ok = ok && tracker_.Contains(PairFirst(p), PairSecond(p));
+    const uint32_t* e = extra_.Find(p);
+    ok = ok && (n == 1 ? e == nullptr : (e != nullptr && *e == n - 1));
+    multi += n > 1;
+  });
+  if (!ok || count.size() != tracker_.overlaps() || multi != extra_.size()) {
+    return fail("witness counts differ from the cells");
+  }
+  return CheckOverlapSet(boxes_, std::move(live), tracker_, kName);
+}
+
+}  // namespace bp::detail
