@@ -24,12 +24,16 @@
 // that leaves one cell and enters another in the same query). Work per query is O(u + e) plus
 // the cells' own work: only cells with buffered operations are applied.
 //
+// With `threads` > 1 the touched cells are applied by a worker pool (cells share nothing); their
+// changes are then folded serially in the order of the touched list, so events do not depend on
+// the thread count.
+//
 // The cell size is either given or chosen from the objects (about `objects_per_cell` objects per
 // cell over the bounds of the box centres); it is chosen again, and every cell rebuilt, when the
 // live count has changed fourfold and the best size differs by more than a factor of two.
 //
-// Thread safety: none (see bp/broadphase.h).
-// Invariants (checked by Validate):
+// Thread safety: none for callers (see bp/broadphase.h); the pool's threads touch one cell each.
+// Invariants (checked by Validate, in detail/grid_validate.h):
 //  1. A live small object's refs list, in row-major order over its cell range, one (cell, local)
 //     per cell; cells_[cell] has that coordinate and global[local] is the object.
 //  2. A cell in use is in the hash under its coordinate, holds members > 0 live objects (its
