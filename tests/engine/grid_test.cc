@@ -234,6 +234,25 @@ TEST(Grid, AutomaticSizeFollowsThePopulation) {
   EXPECT_GE(engine.GetStats().cells, 8u);             // one cell at first
 }
 
+TEST(Grid, AutomaticSizeAfterAFirstFillOfPoints) {
+  GridSegmentedSap<3, float> engine;  // automatic size, from 200 points at one spot
+  Twin<3, float, GridSegmentedSap<3, float>> twin(&engine);
+  for (uint64_t i = 0; i < 200; ++i) twin.Insert(i, Cube<3, float>(5, 0));
+  twin.Query();
+  EXPECT_GE(engine.GetStats().cell_size, 5 * 0x1p-20);  // not a denormal
+  std::mt19937_64 rng(11);
+  std::uniform_real_distribution<float> pos(0, 40);
+  for (uint64_t i = 0; i < 200; ++i) twin.Update(i, Cube<3, float>(pos(rng), 1));
+  twin.Query();  // exact, though the boxes crowd the clamped edge cells or are large
+  for (uint64_t i = 200; i < 1000; ++i) twin.Insert(i, Cube<3, float>(pos(rng), 1));
+  twin.Query();  // the population grew fourfold: sized again from the spread boxes
+  EXPECT_TRUE(engine.GetStats().rebuilt);
+  EXPECT_EQ(engine.GetStats().large_objects, 0u);
+  EXPECT_GE(engine.GetStats().cell_size, 1.0);
+  for (uint64_t i = 0; i < 1000; i += 3) twin.Update(i, Cube<3, float>(pos(rng), 1));
+  twin.Query();
+}
+
 TEST(Grid, LargeObjectsAgainstTheGrid) {
   GridSegmentedSapOptions options;
   options.cell_size = 4;

@@ -285,10 +285,19 @@ class GridCore {
                             std::log(static_cast<double>(std::max<size_t>(n, 1)))) /
                            static_cast<double>(kDim));
     size = std::max(size, median);
-    if (!(size > 0) || !std::isfinite(size)) size = 1;
+    // Degenerate input (all points at one spot): no smaller than 2^-20 of the coordinates'
+    // magnitude (rather than a denormal size that clamps every later box into one edge cell).
+    double magnitude = 0;
+    for (size_t a = 0; a < kAxes; ++a) {
+      magnitude = std::max({magnitude, std::fabs(lo[a]), std::fabs(hi[a])});
+    }
+    double floor = magnitude > 0 && std::isfinite(magnitude) ? magnitude * 0x1p-20 : 1.0;
+    if (!(size >= floor) || !std::isfinite(size)) size = floor;
     return size;
   }
 
+  // Sizes again when the live count has changed fourfold since the size was chosen; rebuilds
+  // only if the ideal size differs by more than 2x.
   void MaybeResize() {
     if (options_.cell_size > 0) return;
     if (live_ < 64 || (live_ <= 4 * sized_for_ && 4 * live_ >= sized_for_)) return;
