@@ -24,6 +24,7 @@ struct Scenario {
   int initial;        // objects inserted before the first query
   int frames;         // queries after the first
   int ops_per_frame;  // upper bound of random operations per frame
+  bool filtered = false;  // objects get random categories, masks and static flags
 };
 
 constexpr Scenario kScenarios[] = {
@@ -36,6 +37,9 @@ constexpr Scenario kScenarios[] = {
     // A larger population with hundreds of operations per frame: many chunks, mass teleports,
     // moved fractions above the global-sort threshold.
     {"large", 300, 20, 700, 8, 500},
+    // Random object options: three category bits, masks that drop some of them, a third of the
+    // objects static; reinserts in one frame may change them (a new handle for an old key).
+    {"filtered", 40, 10, 120, 40, 50, true},
 };
 
 template <class Config>
@@ -96,10 +100,20 @@ class DifferentialTest : public ::testing::Test {
     return it->first;
   }
 
+  ObjectOptions RandomOptions() {
+    ObjectOptions o;
+    if (!sc_->filtered || Below(4) == 0) return o;
+    o.category = uint64_t{1} << Below(3);
+    o.mask = Below(2) == 0 ? ~uint64_t{0} : ~(uint64_t{1} << Below(3));
+    o.is_static = Below(3) == 0;
+    return o;
+  }
   void DoInsert(uint64_t key, const BoxType& box) {
-    Status s = engine_->Insert(key, box);
+    ObjectOptions options = RandomOptions();
+    Status s = engine_->Insert(key, box, options);
     ASSERT_TRUE(s.ok()) << s.ToString();
     model_.boxes()[key] = box;
+    model_.options()[key] = options;
   }
   void DoUpdate(uint64_t key, const BoxType& box) {
     Status s = engine_->Update(key, box);
@@ -110,6 +124,7 @@ class DifferentialTest : public ::testing::Test {
     Status s = engine_->Erase(key);
     ASSERT_TRUE(s.ok()) << s.ToString();
     model_.boxes().erase(key);
+    model_.options().erase(key);
     erased_keys_.push_back(key);
   }
 

@@ -36,7 +36,8 @@ class RecordingSink final : public EventSink<Key> {
   std::vector<std::pair<Key, Key>> uncollides;
 };
 
-/// The model: boxes by key as of the calls made so far; pairs recomputed from scratch.
+/// The model: boxes (and options) by key as of the calls made so far; pairs recomputed from
+/// scratch, keeping those the options accept.
 template <int K, Coordinate T>
 class ModelOracle {
  public:
@@ -45,16 +46,23 @@ class ModelOracle {
 
   std::map<uint64_t, BoxType>& boxes() { return boxes_; }
   const std::map<uint64_t, BoxType>& boxes() const { return boxes_; }
+  /// Non-default options by key (absent: the defaults).
+  std::map<uint64_t, ObjectOptions>& options() { return options_; }
 
-  /// All overlapping pairs (a < b) of the current boxes.
+  /// All overlapping, accepted pairs (a < b) of the current boxes.
   std::set<Pair> Pairs() const {
     std::set<Pair> out;
     for (auto i = boxes_.begin(); i != boxes_.end(); ++i) {
       for (auto j = std::next(i); j != boxes_.end(); ++j) {
-        if (Overlaps(i->second, j->second)) out.emplace(i->first, j->first);
+        if (Overlaps(i->second, j->second) && Accepts(OptionsOf(i->first), OptionsOf(j->first)))
+          out.emplace(i->first, j->first);
       }
     }
     return out;
+  }
+  ObjectOptions OptionsOf(uint64_t key) const {
+    auto it = options_.find(key);
+    return it == options_.end() ? ObjectOptions{} : it->second;
   }
 
   /// The events a query must report now, in canonical order; remembers the new pair set.
@@ -74,6 +82,7 @@ class ModelOracle {
 
  private:
   std::map<uint64_t, BoxType> boxes_;
+  std::map<uint64_t, ObjectOptions> options_;
   std::set<Pair> last_;
 };
 

@@ -23,6 +23,7 @@
 #include <string>
 
 #include "bp/box.h"
+#include "bp/object_options.h"
 #include "bp/status.h"
 
 namespace bp {
@@ -56,6 +57,8 @@ struct Stats {
   size_t cells_queried = 0;  ///< cells the last query applied operations to (grid only)
   size_t large_objects = 0;  ///< objects kept out of the cells for their size (grid only)
   double cell_size = 0;      ///< the grid's cell edge (grid only)
+  double margin = 0;         ///< the fattened boxes' margin (0: exact boxes)
+  size_t fat_skips = 0;      ///< updates of the last query absorbed by a fat box
 };
 
 /// The interface of every broadphase: K axes, coordinates T, client keys Key.
@@ -65,9 +68,11 @@ class Broadphase {
   using BoxType = Box<K, T>;
   virtual ~Broadphase() = default;
 
-  /// Buffers the insertion of key with box. AlreadyExists if key is live; InvalidArgument if the
-  /// box is invalid.
-  virtual Status Insert(const Key& key, const BoxType& box) = 0;
+  /// Buffers the insertion of key with box and options, fixed until its erase. AlreadyExists if
+  /// key is live; InvalidArgument if the box is invalid.
+  virtual Status Insert(const Key& key, const BoxType& box, const ObjectOptions& options) = 0;
+  /// Insert with the default options (every pair accepted).
+  Status Insert(const Key& key, const BoxType& box) { return Insert(key, box, ObjectOptions{}); }
   /// Buffers a new box for key. NotFound if key is not live; InvalidArgument if the box is invalid.
   virtual Status Update(const Key& key, const BoxType& box) = 0;
   /// Buffers the erasure of key. NotFound if key is not live.

@@ -79,7 +79,7 @@ class BruteForceCore {
     for (uint32_t other : live_) {
       if (other == h) continue;
       ++tests_;
-      if (Overlaps(boxes_[h], boxes_[other])) {
+      if (tracker_.Accepts(h, other) && Overlaps(boxes_[h], boxes_[other])) {
         tracker_.Add(h, other);
       } else {
         tracker_.Remove(h, other);

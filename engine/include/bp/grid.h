@@ -521,6 +521,7 @@ class GridCore {
       cell.global.push_back(kNone);
     }
     cell.global[local] = h;
+    if (tracker_.filtering()) cell.core.tracker().SetOptions(local, tracker_.options(h));
     return local;
   }
 
@@ -709,6 +710,7 @@ class GridCore {
     const bool alive = objects_[h].state == State::kLive;
     for (uint32_t l : candidates_) {
       Large& lg = large_[l];
+      if (!tracker_.Accepts(h, lg.handle)) continue;  // never a partner
       const BoxType& lbox = boxes_[lg.handle];
       ++tests_;
       bool now = alive && Overlaps(boxes_[h], lbox);
@@ -734,6 +736,7 @@ class GridCore {
         stamp_[g] = epoch_;
         const Object& x = objects_[g];
         if (x.state != State::kLive || x.large != kNone) continue;  // left, or now large
+        if (!tracker_.Accepts(g, h)) continue;
         ++tests_;
         if (Overlaps(boxes_[g], box)) {
           mark_[g] = epoch_;
@@ -743,7 +746,7 @@ class GridCore {
     });
     for (const Large& other : large_) {
       uint32_t g = other.handle;
-      if (g == kNone || g == h) continue;
+      if (g == kNone || g == h || !tracker_.Accepts(g, h)) continue;
       ++tests_;
       if (Overlaps(boxes_[g], box)) {
         mark_[g] = epoch_;

@@ -79,6 +79,11 @@ Status GridCore<Cell>::Validate() const {
       }
     }
     if (Status s = c.core.Validate(); !s.ok()) return fail("cell: " + s.message());
+    for (uint32_t local = 0; local < c.global.size(); ++local) {
+      uint32_t g = c.global[local];
+      if (g != kNone && !(c.core.tracker().options(local) == tracker_.options(g)))
+        return fail("a cell's object options differ from the grid's");
+    }
     c.core.tracker().ForEachOverlap([&](uint32_t a, uint32_t b) {
       ++count.FindOrInsert(HandlePair(c.global[a], c.global[b]), 0);
     });
@@ -91,11 +96,15 @@ Status GridCore<Cell>::Validate() const {
       continue;
     }
     size_t overlapping = 0;
-    for (uint32_t g : live) overlapping += g != lg.handle && Overlaps(boxes_[g], boxes_[lg.handle]);
+    for (uint32_t g : live) {
+      overlapping += g != lg.handle && Overlaps(boxes_[g], boxes_[lg.handle]) &&
+                     tracker_.Accepts(g, lg.handle);
+    }
     if (overlapping != lg.partners.size()) return fail("large partners differ");
     bool ok = true;
     lg.partners.ForEach([&](uint32_t x) {
-      ok = ok && objects_[x].state == State::kLive && Overlaps(boxes_[x], boxes_[lg.handle]);
+      ok = ok && objects_[x].state == State::kLive && Overlaps(boxes_[x], boxes_[lg.handle]) &&
+           tracker_.Accepts(x, lg.handle);
       if (objects_[x].large != kNone) {
         ok = ok && large_[objects_[x].large].partners.Contains(lg.handle);
         if (x < lg.handle) return;  // a large pair counts once

@@ -3,6 +3,17 @@
 // key between two queries into at most one operation, hands the core one batch per Query, and
 // turns the core's changed handle pairs into canonical key events.
 //
+// Object options reach the core's tracker (SetOptions) before the batch that inserts them.
+// Erase + insert of a live key with the same options is an update of its handle; with other
+// options the insert takes a fresh handle (a "rekey"), and the pairs the key keeps, reported
+// once as uncollide and once as collide, cancel out before the events go out.
+//
+// Fattened boxes (margin > 0): the core sees, per object, a fat box (the box grown by margin on
+// every side). An update whose box still lies inside the fat box, and whose fat box is not more
+// than 4 margins wider than the box on any side, does not reach the core; otherwise the fat box
+// is recomputed. Events and ForEachOverlap are then those of the fat boxes: no overlapping pair
+// is missed, and every reported pair's boxes lie within 8 margins of each other on every axis.
+//
 // A core works on handles only (it never sees keys) and must provide:
 //   static constexpr int kDim; using Coord = T; static constexpr const char* kName;
 //   static constexpr size_t kMaxHandles;   // handles are 0..kMaxHandles-1
@@ -13,17 +24,22 @@
 //
 // Thread safety: none (see bp/broadphase.h).
 // Invariants:
-//  1. handle_of_[key] exists iff the key is live at the last query or has a pending insert.
+//  1. handle_of_[key] exists iff the key is present (live at the last query and not erased since,
+//     or pending insert), or is live with a pending erase and was not reinserted.
 //  2. A handle is queued at most once between queries; handles are freed only inside Query,
 //     after the core has applied the batch, so a handle never means two keys within one batch.
-//  3. erase + insert of one live key between queries becomes an update of the same handle.
+//  3. erase + insert of one live key with equal options between queries becomes an update of
+//     the same handle.
+//  4. With a margin, a slot's box (what the core holds) contains the client's last box.
 #pragma once
 
 #include <algorithm>
 #include <cstdint>
 #include <functional>
+#include <limits>
 #include <span>
 #include <string>
+#include <type_traits>
 #include <unordered_map>
 #include <utility>
 #include <vector>
@@ -32,6 +48,7 @@
 #include "bp/broadphase.h"
 #include "bp/detail/assert.h"
 #include "bp/detail/pair_tracker.h"
+#include "bp/object_options.h"
 
 namespace bp::detail {
 
@@ -52,18 +69,27 @@ class KeyedEngine final : public Broadphase<Core::kDim, typename Core::Coord, Ke
   using BoxType = typename Base::BoxType;
   using Options = typename Core::Options;
 
-  explicit KeyedEngine(const Options& options = Options()) : core_(options) {}
+  using Base::Insert;
 
-  Status Insert(const Key& key, const BoxType& box) override {
+  /// margin > 0 keeps fattened boxes (see above); 0, negative or NaN keeps exact boxes.
+  explicit KeyedEngine(const Options& options = Options(), T margin = T{})
+      : core_(options), margin_(margin > T{} ? margin : T{}) {}
+
+  Status Insert(const Key& key, const BoxType& box, const ObjectOptions& options) override {
     if (Status s = ValidateBox(box); !s.ok()) return Annotate(s, "insert");
     auto it = handle_of_.find(key);
     if (it != handle_of_.end()) {
       Slot& slot = slots_[it->second];
       if (Present(slot)) return Status(StatusCode::kAlreadyExists, "insert: key already present");
-      // Live at the last query and erased since: erase + insert is an update (invariant 3).
-      slot.pending = Pending::kUpdate;
-      slot.box = box;
-      return Status::Ok();
+      if (slot.options == options) {
+        // Live at the last query and erased since: erase + insert is an update (invariant 3).
+        slot.pending = Pending::kUpdate;
+        slot.box = Fatten(box);
+        return Status::Ok();
+      }
+      // New options: the old handle stays erased and the key takes a fresh one (a rekey).
+      handle_of_.erase(it);
+      rekeyed_ = true;
     }
     if (free_.empty() && slots_.size() >= Core::kMaxHandles) {
       return Status(StatusCode::kResourceExhausted,
@@ -72,7 +98,8 @@ class KeyedEngine final : public Broadphase<Core::kDim, typename Core::Coord, Ke
     uint32_t h = AllocHandle();
     Slot& slot = slots_[h];
     slot.key = key;
-    slot.box = box;
+    slot.box = Fatten(box);
+    slot.options = options;
     slot.live = false;
     slot.pending = Pending::kInsert;
     handle_of_.emplace(key, h);
@@ -87,7 +114,15 @@ class KeyedEngine final : public Broadphase<Core::kDim, typename Core::Coord, Ke
       return Status(StatusCode::kNotFound, "update: unknown key");
     }
     Slot& slot = slots_[it->second];
-    slot.box = box;
+    if (margin_ > T{}) {
+      if (FatEnough(slot.box, box)) {
+        ++fat_skips_;
+        return Status::Ok();
+      }
+      slot.box = Fatten(box);
+    } else {
+      slot.box = box;
+    }
     if (slot.pending == Pending::kNone) slot.pending = Pending::kUpdate;
     Enqueue(it->second);
     return Status::Ok();
@@ -115,6 +150,7 @@ class KeyedEngine final : public Broadphase<Core::kDim, typename Core::Coord, Ke
     erases_.clear();
     updates_.clear();
     inserts_.clear();
+    PairTracker& tracker = core_.tracker();
     for (uint32_t h : queue_) {
       Slot& slot = slots_[h];
       switch (slot.pending) {
@@ -126,6 +162,7 @@ class KeyedEngine final : public Broadphase<Core::kDim, typename Core::Coord, Ke
           break;
         case Pending::kInsert:
           inserts_.push_back({h, slot.box});
+          tracker.SetOptions(h, slot.options);
           break;
         case Pending::kNone:
           break;
@@ -147,7 +184,8 @@ class KeyedEngine final : public Broadphase<Core::kDim, typename Core::Coord, Ke
       Slot& slot = slots_[h];
       slot.queued = false;
       if (slot.pending == Pending::kErase) {
-        handle_of_.erase(slot.key);
+        auto it = handle_of_.find(slot.key);
+        if (it != handle_of_.end() && it->second == h) handle_of_.erase(it);  // else rekeyed
         slot.live = false;
       } else if (slot.pending != Pending::kNone) {
         slot.live = true;
@@ -159,6 +197,9 @@ class KeyedEngine final : public Broadphase<Core::kDim, typename Core::Coord, Ke
 
     std::sort(uncollides_.begin(), uncollides_.end());
     std::sort(collides_.begin(), collides_.end());
+    if (rekeyed_) CancelRekeyedPairs();
+    last_fat_skips_ = fat_skips_;
+    fat_skips_ = 0;
     if constexpr (kValidateEachQuery) {
       if (Status v = Validate(); !v.ok()) ReportFailure(__FILE__, __LINE__, v.message().c_str());
     }
@@ -190,6 +231,8 @@ class KeyedEngine final : public Broadphase<Core::kDim, typename Core::Coord, Ke
     s.erases = erases_.size();
     s.collides = collides_.size();
     s.uncollides = uncollides_.size();
+    s.margin = static_cast<double>(margin_);
+    s.fat_skips = last_fat_skips_;
     return s;
   }
 
@@ -198,18 +241,27 @@ class KeyedEngine final : public Broadphase<Core::kDim, typename Core::Coord, Ke
       return Status(StatusCode::kInternal, std::string("front end: ") + what);
     };
     if (core_.tracker().pending_changes() != 0) return fail("changed pairs left after a query");
-    size_t live = 0, mapped = 0, queued = 0;
-    for (const Slot& slot : slots_) {
+    size_t live = 0, present = 0, queued = 0;
+    for (uint32_t h = 0; h < slots_.size(); ++h) {
+      const Slot& slot = slots_[h];
       live += slot.live ? 1 : 0;
-      mapped += (slot.live || slot.pending == Pending::kInsert) ? 1 : 0;
       queued += slot.queued ? 1 : 0;
+      if (Present(slot)) {
+        ++present;
+        auto it = handle_of_.find(slot.key);
+        if (it == handle_of_.end() || it->second != h) return fail("present key not mapped");
+      }
     }
     if (live != core_.live()) return fail("live counts disagree");
-    if (mapped != handle_of_.size()) return fail("key map size differs from mapped slots");
     if (queued != queue_.size()) return fail("queue differs from queued flags");
     for (const auto& [key, h] : handle_of_) {
       if (h >= slots_.size() || !(slots_[h].key == key)) return fail("key map points astray");
+      const Slot& slot = slots_[h];
+      if (!Present(slot) && !(slot.live && slot.pending == Pending::kErase)) {
+        return fail("key map names a dead slot");
+      }
     }
+    if (handle_of_.size() < present) return fail("key map smaller than the present slots");
     std::vector<uint8_t> free_seen(slots_.size(), 0);
     for (uint32_t h : free_) {
       if (h >= slots_.size() || free_seen[h]++) return fail("free list broken");
@@ -230,11 +282,64 @@ class KeyedEngine final : public Broadphase<Core::kDim, typename Core::Coord, Ke
   enum class Pending : uint8_t { kNone, kInsert, kUpdate, kErase };
   struct Slot {
     Key key{};
-    BoxType box;
+    BoxType box;  // the client's box, or its fat box with a margin
+    ObjectOptions options;
     bool live = false;    // present as of the last query
     bool queued = false;  // in queue_
     Pending pending = Pending::kNone;
   };
+
+  // Grows box by m on every side, saturating at the limits of T (m >= 0).
+  static BoxType Grow(const BoxType& box, T m) {
+    constexpr T kLowest = std::numeric_limits<T>::lowest();
+    constexpr T kMax = std::numeric_limits<T>::max();
+    BoxType out = box;
+    for (size_t i = 0; i < static_cast<size_t>(K); ++i) {
+      if constexpr (std::is_floating_point_v<T>) {
+        out.lo[i] = std::max(box.lo[i] - m, kLowest);  // -inf becomes lowest
+        out.hi[i] = std::min(box.hi[i] + m, kMax);
+      } else {
+        out.lo[i] = box.lo[i] < kLowest + m ? kLowest : static_cast<T>(box.lo[i] - m);
+        out.hi[i] = box.hi[i] > kMax - m ? kMax : static_cast<T>(box.hi[i] + m);
+      }
+    }
+    return out;
+  }
+  static bool Contains(const BoxType& outer, const BoxType& inner) {
+    for (size_t i = 0; i < static_cast<size_t>(K); ++i) {
+      if (inner.lo[i] < outer.lo[i] || outer.hi[i] < inner.hi[i]) return false;
+    }
+    return true;
+  }
+  BoxType Fatten(const BoxType& box) const { return margin_ > T{} ? Grow(box, margin_) : box; }
+  // True iff fat may stay the fat box of box: it contains box and is not too loose.
+  bool FatEnough(const BoxType& fat, const BoxType& box) const {
+    return Contains(fat, box) && Contains(Grow(box, loose_), fat);
+  }
+  static T LooseLimit(T margin) {
+    constexpr T kMax = std::numeric_limits<T>::max();
+    return margin > kMax / 4 ? kMax : static_cast<T>(margin * 4);
+  }
+
+  // Removes the pairs present in both sorted lists: a rekeyed key's pairs that it keeps.
+  void CancelRekeyedPairs() {
+    rekeyed_ = false;
+    size_t u = 0, c = 0, uo = 0, co = 0;
+    while (u < uncollides_.size() && c < collides_.size()) {
+      if (uncollides_[u] < collides_[c]) {
+        uncollides_[uo++] = std::move(uncollides_[u++]);
+      } else if (collides_[c] < uncollides_[u]) {
+        collides_[co++] = std::move(collides_[c++]);
+      } else {
+        ++u;
+        ++c;
+      }
+    }
+    while (u < uncollides_.size()) uncollides_[uo++] = std::move(uncollides_[u++]);
+    while (c < collides_.size()) collides_[co++] = std::move(collides_[c++]);
+    uncollides_.resize(uo);
+    collides_.resize(co);
+  }
 
   static bool Present(const Slot& slot) {
     return slot.pending == Pending::kInsert || (slot.live && slot.pending != Pending::kErase);
@@ -260,6 +365,11 @@ class KeyedEngine final : public Broadphase<Core::kDim, typename Core::Coord, Ke
   }
 
   Core core_;
+  T margin_;
+  T loose_ = LooseLimit(margin_);
+  bool rekeyed_ = false;      // a key took a fresh handle since the last query
+  size_t fat_skips_ = 0;      // updates absorbed by fat boxes since the last query
+  size_t last_fat_skips_ = 0;
   std::vector<Slot> slots_;
   std::unordered_map<Key, uint32_t> handle_of_;
   std::vector<uint32_t> free_;

@@ -1,16 +1,21 @@
 // bp::detail::PairTracker: the candidate set (pairs of dense handles that overlap now) and the
-// set of pairs whose status differs from the last query, from which events are drawn.
+// set of pairs whose status differs from the last query, from which events are drawn. It also
+// keeps each handle's ObjectOptions once any object has non-default ones: Add refuses the pairs
+// that fail Accepts, so filtered pairs never enter any set (cores ask Accepts before a box test
+// where the test can be skipped).
 //
 // Thread safety: none; owned by one engine.
 // Invariants:
 //  1. overlaps_ holds exactly the overlapping pairs of the current boxes (when a core is idle).
 //  2. A pair is in changed_ iff its membership in overlaps_ differs from that at the last Drain.
+//  3. Every pair in overlaps_ passes Accepts.
 #pragma once
 
 #include <cstdint>
 #include <vector>
 
 #include "bp/detail/flat_set.h"
+#include "bp/object_options.h"
 
 namespace bp::detail {
 
@@ -23,8 +28,10 @@ inline uint32_t PairSecond(uint64_t p) { return static_cast<uint32_t>(p); }
 
 class PairTracker {
  public:
-  /// Records that a and b overlap (idempotent); true if they did not before.
+  /// Records that a and b overlap (idempotent); true if they did not before. A pair that fails
+  /// Accepts is not recorded (false).
   bool Add(uint32_t a, uint32_t b) {
+    if (!Accepts(a, b)) return false;
     uint64_t p = HandlePair(a, b);
     if (!overlaps_.Insert(p)) return false;
     Toggle(p);
@@ -38,6 +45,28 @@ class PairTracker {
     return true;
   }
   bool Contains(uint32_t a, uint32_t b) const { return overlaps_.Contains(HandlePair(a, b)); }
+
+  /// Sets the options of handle h (before any of its pairs is added). Default options cost
+  /// nothing until some handle has non-default ones.
+  void SetOptions(uint32_t h, const ObjectOptions& options) {
+    if (!filtering_) {
+      if (options == ObjectOptions{}) return;
+      filtering_ = true;
+    }
+    if (h >= options_.size()) options_.resize(size_t{h} + 1);
+    options_[h] = options;
+  }
+  /// The options of handle h.
+  const ObjectOptions& options(uint32_t h) const {
+    static const ObjectOptions kDefault;
+    return h < options_.size() ? options_[h] : kDefault;
+  }
+  /// True iff some handle has had non-default options (then SetOptions must see every insert).
+  bool filtering() const { return filtering_; }
+  /// True iff the pair (a, b) may be tracked (see bp/object_options.h).
+  bool Accepts(uint32_t a, uint32_t b) const {
+    return !filtering_ || bp::Accepts(options(a), options(b));
+  }
 
   /// Calls f(a, b, overlapping_now) for every pair changed since the last drain, then forgets
   /// them. O(toggles since the last drain): the section 3.3 bound, whatever earlier queries did.
@@ -67,6 +96,8 @@ class PairTracker {
   }
 
   FlatSet<uint64_t> overlaps_;
+  std::vector<ObjectOptions> options_;  // by handle; empty while filtering_ is false
+  bool filtering_ = false;
   FlatSet<uint64_t> changed_;      // pairs whose state differs from the last drain
   std::vector<uint64_t> toggled_;  // every pair that entered changed_ since the last drain
 };

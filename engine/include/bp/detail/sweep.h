@@ -16,7 +16,8 @@
 
 namespace bp::detail {
 
-/// Ok iff tracker holds exactly the overlapping pairs among boxes[h] for h in live.
+/// Ok iff tracker holds exactly the overlapping pairs among boxes[h] for h in live that pass
+/// its filter.
 template <int K, Coordinate T>
 Status CheckOverlapSet(const std::vector<Box<K, T>>& boxes, std::vector<uint32_t> live,
                        const PairTracker& tracker, const char* engine) {
@@ -26,7 +27,7 @@ Status CheckOverlapSet(const std::vector<Box<K, T>>& boxes, std::vector<uint32_t
   for (size_t i = 0; i < live.size(); ++i) {
     const Box<K, T>& a = boxes[live[i]];
     for (size_t j = i + 1; j < live.size() && !(a.hi[0] < boxes[live[j]].lo[0]); ++j) {
-      if (!Overlaps(a, boxes[live[j]])) continue;
+      if (!Overlaps(a, boxes[live[j]]) || !tracker.Accepts(live[i], live[j])) continue;
       ++pairs;
       if (!tracker.Contains(live[i], live[j])) {
         return Status(StatusCode::kInternal, std::string(engine) + ": overlapping pair " +

@@ -1,0 +1,319 @@
+// The shared front end's object options and fattened boxes, through every engine:
+//  - options: a changed reinsert (a rekey) reports only real status changes; static pairs and
+//    filtered pairs never appear; rejected pairs cost no box test in the grid's large set.
+//  - fat boxes: with a margin, every engine reports exactly what brute force with the same
+//    margin reports, never misses an overlapping pair of the real boxes, reports only pairs whose
+//    real boxes grown by 4 margins overlap, and skips the updates its fat boxes absorb.
+// Replay one seed with BP_TEST_SEED=<seed>.
+#include <cstdint>
+#include <limits>
+#include <map>
+#include <memory>
+#include <random>
+#include <set>
+#include <string>
+#include <utility>
+#include <vector>
+
+#include "test_support.h"
+#include <gtest/gtest.h>
+
+namespace bp::test {
+namespace {
+
+using Pair = std::pair<uint64_t, uint64_t>;
+
+template <int K, class T>
+Box<K, T> Cube(T lo, T hi) {
+  Box<K, T> b;
+  for (size_t a = 0; a < static_cast<size_t>(K); ++a) {
+    b.lo[a] = lo;
+    b.hi[a] = hi;
+  }
+  return b;
+}
+
+// ---- options ------------------------------------------------------------------------------
+
+template <class Config>
+class OptionsTest : public ::testing::Test {};
+
+using OptionEngines =
+    ::testing::Types<EngineConfig<3, float, MakeBruteForce>,
+                     EngineConfig<3, float, MakeSegmentedSap<32, 7>>,
+                     EngineConfig<2, double, MakeBatchSap<7>>,
+                     EngineConfig<3, double, MakeDynamicOctree<>>,
+                     EngineConfig<3, float, MakeGrid<false, 0>>,
+                     EngineConfig<2, int32_t, MakeGrid<true, 10, 4>>>;
+TYPED_TEST_SUITE(OptionsTest, OptionEngines);
+
+TYPED_TEST(OptionsTest, ReinsertWithOtherOptionsReportsOnlyRealChanges) {
+  constexpr int K = TypeParam::K;
+  using T = typename TypeParam::T;
+  auto engine = TypeParam::Create();
+  RecordingSink<uint64_t> sink;
+  ASSERT_TRUE(engine->Insert(1, Cube<K, T>(0, 4)).ok());
+  ASSERT_TRUE(engine->Insert(2, Cube<K, T>(2, 6)).ok());
+  ASSERT_TRUE(engine->Insert(3, Cube<K, T>(3, 9)).ok());
+  engine->Query(sink);
+  EXPECT_EQ(sink.collides, (std::vector<Pair>{{1, 2}, {1, 3}, {2, 3}}));
+
+  // 1 comes back in category 2: 2 and 3 (masks all ones) still accept it: no event.
+  sink.Clear();
+  ASSERT_TRUE(engine->Erase(1).ok());
+  ASSERT_TRUE(engine->Insert(1, Cube<K, T>(0, 4), ObjectOptions{.category = 2}).ok());
+  engine->Query(sink);
+  EXPECT_TRUE(sink.collides.empty());
+  EXPECT_TRUE(sink.uncollides.empty());
+  EXPECT_EQ(engine->GetStats().overlaps, 3u);
+
+  // 2 comes back masking category 2 out: only (1, 2) goes.
+  sink.Clear();
+  ASSERT_TRUE(engine->Erase(2).ok());
+  ASSERT_TRUE(engine->Insert(2, Cube<K, T>(2, 6), ObjectOptions{.mask = ~uint64_t{2}}).ok());
+  engine->Query(sink);
+  EXPECT_EQ(sink.uncollides, (std::vector<Pair>{{1, 2}}));
+  EXPECT_TRUE(sink.collides.empty());
+
+  // 2 and 3 become static: (2, 3) goes. Then 3 becomes dynamic and moves: (2, 3) returns.
+  sink.Clear();
+  ASSERT_TRUE(engine->Erase(2).ok());
+  ASSERT_TRUE(engine->Insert(2, Cube<K, T>(2, 6), ObjectOptions{.is_static = true}).ok());
+  ASSERT_TRUE(engine->Erase(3).ok());
+  ASSERT_TRUE(engine->Insert(3, Cube<K, T>(3, 9), ObjectOptions{.is_static = true}).ok());
+  engine->Query(sink);
+  EXPECT_EQ(sink.uncollides, (std::vector<Pair>{{2, 3}}));
+  EXPECT_EQ(sink.collides, (std::vector<Pair>{{1, 2}}));
+  sink.Clear();
+  ASSERT_TRUE(engine->Erase(3).ok());
+  ASSERT_TRUE(engine->Insert(3, Cube<K, T>(4, 8)).ok());
+  engine->Query(sink);
+  EXPECT_TRUE(sink.uncollides.empty());
+  EXPECT_EQ(sink.collides, (std::vector<Pair>{{2, 3}}));
+
+  // Reinsert, erase again and reinsert with the first options within one frame.
+  sink.Clear();
+  ASSERT_TRUE(engine->Erase(1).ok());
+  ASSERT_TRUE(engine->Insert(1, Cube<K, T>(0, 4), ObjectOptions{.category = 4}).ok());
+  ASSERT_TRUE(engine->Erase(1).ok());
+  ASSERT_TRUE(engine->Insert(1, Cube<K, T>(0, 4), ObjectOptions{.category = 2}).ok());
+  engine->Query(sink);
+  EXPECT_TRUE(sink.collides.empty());
+  EXPECT_TRUE(sink.uncollides.empty());
+  EXPECT_EQ(engine->Size(), 3u);
+  EXPECT_TRUE(engine->Validate().ok()) << engine->Validate().ToString();
+
+  // Erasing reports the remaining pairs once.
+  sink.Clear();
+  ASSERT_TRUE(engine->Erase(1).ok());
+  ASSERT_TRUE(engine->Erase(2).ok());
+  ASSERT_TRUE(engine->Erase(3).ok());
+  engine->Query(sink);
+  EXPECT_EQ(sink.uncollides, (std::vector<Pair>{{1, 2}, {1, 3}, {2, 3}}));
+  EXPECT_EQ(engine->GetStats().overlaps, 0u);
+}
+
+TYPED_TEST(OptionsTest, StaticWorldPairsOnlyWithMovers) {
+  constexpr int K = TypeParam::K;
+  using T = typename TypeParam::T;
+  auto engine = TypeParam::Create();
+  RecordingSink<uint64_t> sink;
+  // A row of 200 touching static boxes and 4 dynamic boxes among them.
+  for (uint64_t i = 0; i < 200; ++i) {
+    T lo = static_cast<T>(i);
+    ASSERT_TRUE(engine->Insert(i, Cube<K, T>(lo, static_cast<T>(lo + 1)),
+                               ObjectOptions{.is_static = true})
+                    .ok());
+  }
+  for (uint64_t i = 0; i < 4; ++i) {
+    T lo = static_cast<T>(50 * i + 10);
+    ASSERT_TRUE(engine->Insert(1000 + i, Cube<K, T>(lo, static_cast<T>(lo + 2))).ok());
+  }
+  engine->Query(sink);
+  // Each dynamic box [lo, lo+2] touches statics lo-1 .. lo+2.
+  EXPECT_EQ(sink.collides.size(), 16u);
+  for (const Pair& p : sink.collides) EXPECT_GE(p.second, 1000u);
+  EXPECT_TRUE(engine->Validate().ok()) << engine->Validate().ToString();
+  // Moving a static box changes nothing among statics.
+  sink.Clear();
+  ASSERT_TRUE(engine->Update(100, Cube<K, T>(99, 103)).ok());
+  engine->Query(sink);
+  EXPECT_TRUE(sink.collides.empty());
+  EXPECT_TRUE(sink.uncollides.empty());
+}
+
+// ---- fattened boxes -------------------------------------------------------------------------
+
+template <int K, class T>
+using EngineFactory = std::unique_ptr<Broadphase<K, T>> (*)(T margin);
+
+template <int K, class T>
+struct MarginEngines {
+  static std::vector<std::pair<std::string, EngineFactory<K, T>>> All() {
+    return {
+        {"brute_force", [](T m) -> std::unique_ptr<Broadphase<K, T>> {
+           return std::make_unique<BruteForce<K, T>>(typename BruteForce<K, T>::Options(), m);
+         }},
+        {"segmented_sap", [](T m) -> std::unique_ptr<Broadphase<K, T>> {
+           return std::make_unique<SegmentedSap<K, T>>(SegmentedSapOptions(), m);
+         }},
+        {"batch_sap", [](T m) -> std::unique_ptr<Broadphase<K, T>> {
+           return std::make_unique<BatchSap<K, T>>(BatchSapOptions(), m);
+         }},
+        {"dynamic_octree", [](T m) -> std::unique_ptr<Broadphase<K, T>> {
+           return std::make_unique<DynamicOctree<K, T>>(DynamicOctreeOptions(), m);
+         }},
+        {"grid_segmented_sap", [](T m) -> std::unique_ptr<Broadphase<K, T>> {
+           return std::make_unique<GridSegmentedSap<K, T>>(GridSegmentedSapOptions(), m);
+         }},
+        {"grid_batch_sap_small_cells", [](T m) -> std::unique_ptr<Broadphase<K, T>> {
+           GridBatchSapOptions options;
+           options.cell_size = 4;
+           options.max_cells_per_object = 8;
+           return std::make_unique<GridBatchSap<K, T>>(options, m);
+         }},
+    };
+  }
+};
+
+template <class Config>
+class FatBoxTest : public ::testing::Test {};
+using FatShapes = ::testing::Types<EngineConfig<2, float, MakeBruteForce>,
+                                   EngineConfig<3, float, MakeBruteForce>,
+                                   EngineConfig<3, double, MakeBruteForce>,
+                                   EngineConfig<2, int32_t, MakeBruteForce>>;
+TYPED_TEST_SUITE(FatBoxTest, FatShapes);
+
+TYPED_TEST(FatBoxTest, EveryEngineMatchesBruteForceAndBoundsTheError) {
+  constexpr int K = TypeParam::K;
+  using T = typename TypeParam::T;
+  using BoxT = Box<K, T>;
+  const T margin = 2;
+  for (const auto& [name, make] : MarginEngines<K, T>::All()) {
+    for (uint64_t seed : TestSeeds(77, 3)) {
+      SCOPED_TRACE(name + " K=" + std::to_string(K) + " seed=" + std::to_string(seed));
+      std::mt19937_64 rng(seed);
+      auto below = [&](int n) { return std::uniform_int_distribution<int>(0, n - 1)(rng); };
+      auto engine = make(margin);
+      BruteForce<K, T> reference(typename BruteForce<K, T>::Options(), margin);
+      ModelOracle<K, T> exact, loose;  // the real boxes, and the real boxes grown by 4 margins
+      auto random_box = [&]() {
+        BoxT b;
+        for (size_t a = 0; a < static_cast<size_t>(K); ++a) {
+          b.lo[a] = static_cast<T>(below(120) - 60);
+          b.hi[a] = static_cast<T>(b.lo[a] + static_cast<T>(below(6)));
+        }
+        return b;
+      };
+      auto grow = [&](BoxT b) {
+        for (size_t a = 0; a < static_cast<size_t>(K); ++a) {
+          b.lo[a] = static_cast<T>(b.lo[a] - 4 * margin);
+          b.hi[a] = static_cast<T>(b.hi[a] + 4 * margin);
+        }
+        return b;
+      };
+      auto set = [&](uint64_t key, const BoxT& b) {
+        exact.boxes()[key] = b;
+        loose.boxes()[key] = grow(b);
+      };
+      for (uint64_t key = 0; key < 150; ++key) {
+        BoxT b = random_box();
+        ASSERT_TRUE(engine->Insert(key, b).ok());
+        ASSERT_TRUE(reference.Insert(key, b).ok());
+        set(key, b);
+      }
+      uint64_t next = 150;
+      size_t skipped = 0;
+      for (int frame = 0; frame < 60 && !this->HasFailure(); ++frame) {
+        if (frame > 0) {
+          for (int op = 0; op < 40; ++op) {
+            auto it = exact.boxes().begin();
+            std::advance(it, below(static_cast<int>(exact.boxes().size())));
+            uint64_t key = it->first;
+            BoxT b = it->second;
+            int kind = below(20);
+            if (kind == 0) {  // erase, and insert a new key
+              ASSERT_TRUE(engine->Erase(key).ok());
+              ASSERT_TRUE(reference.Erase(key).ok());
+              exact.boxes().erase(key);
+              loose.boxes().erase(key);
+              b = random_box();
+              ASSERT_TRUE(engine->Insert(next, b).ok());
+              ASSERT_TRUE(reference.Insert(next, b).ok());
+              set(next++, b);
+              continue;
+            }
+            if (kind == 1) {
+              b = random_box();  // teleport
+            } else {           // a small step, or a shrink that leaves a loose fat box
+              for (size_t a = 0; a < static_cast<size_t>(K); ++a) {
+                T d = static_cast<T>(below(3) - 1);
+                b.lo[a] = static_cast<T>(b.lo[a] + d);
+                b.hi[a] = static_cast<T>(kind == 2 ? b.lo[a] : b.hi[a] + d);
+              }
+            }
+            ASSERT_TRUE(engine->Update(key, b).ok());
+            ASSERT_TRUE(reference.Update(key, b).ok());
+            set(key, b);
+          }
+        }
+        RecordingSink<uint64_t> got, want;
+        engine->Query(got);
+        reference.Query(want);
+        ASSERT_EQ(got.uncollides, want.uncollides) << "frame " << frame;
+        ASSERT_EQ(got.collides, want.collides) << "frame " << frame;
+        skipped += engine->GetStats().fat_skips;
+        EXPECT_EQ(engine->GetStats().margin, static_cast<double>(margin));
+        std::set<Pair> reported;
+        engine->ForEachOverlap([&](uint64_t a, uint64_t b) { reported.emplace(a, b); });
+        for (const Pair& p : exact.Pairs()) {
+          ASSERT_TRUE(reported.count(p)) << "missed " << p.first << "," << p.second;
+        }
+        std::set<Pair> bound = loose.Pairs();
+        for (const Pair& p : reported) {
+          ASSERT_TRUE(bound.count(p)) << "too far apart " << p.first << "," << p.second;
+        }
+      }
+      EXPECT_GT(skipped, 0u) << "no update was absorbed by a fat box";
+    }
+  }
+}
+
+TEST(FatBoxes, MarginSaturatesAtTheCoordinateLimits) {
+  using BoxI = Box<2, int32_t>;
+  constexpr int32_t kMin = std::numeric_limits<int32_t>::lowest();
+  constexpr int32_t kMax = std::numeric_limits<int32_t>::max();
+  GridSegmentedSap<2, int32_t> engine(GridSegmentedSapOptions(), 1000);
+  RecordingSink<uint64_t> sink;
+  ASSERT_TRUE(engine.Insert(1, BoxI{{kMin, kMin}, {kMin + 5, kMin + 5}}).ok());
+  ASSERT_TRUE(engine.Insert(2, BoxI{{kMax - 5, kMax - 5}, {kMax, kMax}}).ok());
+  ASSERT_TRUE(engine.Insert(3, BoxI{{kMin + 1500, kMin}, {kMin + 1600, kMin + 3}}).ok());
+  engine.Query(sink);
+  // 1's fat box reaches kMin + 1005, 3's starts at kMin + 500: they pair; 2 pairs with neither.
+  EXPECT_EQ(sink.collides, (std::vector<Pair>{{1, 3}}));
+  EXPECT_TRUE(engine.Validate().ok());
+
+  GridSegmentedSap<3, float> fl(GridSegmentedSapOptions(), 1e38f);
+  const float big = std::numeric_limits<float>::max();
+  ASSERT_TRUE(fl.Insert(1, Box<3, float>{{-big, -big, -big}, {-big, -big, -big}}).ok());
+  ASSERT_TRUE(fl.Insert(2, Box<3, float>{{big, big, big}, {big, big, big}}).ok());
+  sink.Clear();
+  fl.Query(sink);  // the fat boxes stay finite (no inf reaches the cells)
+  EXPECT_TRUE(sink.collides.empty());
+  EXPECT_TRUE(fl.Validate().ok());
+}
+
+TEST(FatBoxes, NegativeOrNanMarginMeansExact) {
+  SegmentedSap<2, double> engine(SegmentedSapOptions(), -1.0);
+  EXPECT_EQ(engine.GetStats().margin, 0.0);
+  SegmentedSap<2, double> nan(SegmentedSapOptions(), std::numeric_limits<double>::quiet_NaN());
+  EXPECT_EQ(nan.GetStats().margin, 0.0);
+  RecordingSink<uint64_t> sink;
+  ASSERT_TRUE(engine.Insert(1, Box<2, double>{{0, 0}, {1, 1}}).ok());
+  ASSERT_TRUE(engine.Insert(2, Box<2, double>{{1.5, 0}, {2, 1}}).ok());
+  engine.Query(sink);
+  EXPECT_TRUE(sink.collides.empty());
+}
+
+}  // namespace
+}  // namespace bp::test
