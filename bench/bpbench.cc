@@ -16,6 +16,7 @@
 #include <cinttypes>
 #include <cstdint>
 #include <cstdio>
+#include <iterator>
 #include <memory>
 #include <sstream>
 #include <string>
@@ -53,6 +54,8 @@ struct Config {
   uint32_t big_boxes = 0;  // static boxes of big_width cube widths added to the scene
   double big_width = 50;
   bool world_box = false;  // one static box covering the whole scene
+  double margin = 0;        // fattened boxes' margin in cube widths (0: exact)
+  bool static_rest = false;  // resting slots' objects inserted static
   uint32_t octree_capacity = bp::DynamicOctreeOptions().max_objects_per_node;
   uint32_t octree_depth = bp::DynamicOctreeOptions().max_depth;
   int repeats = 5;
@@ -66,6 +69,9 @@ struct Result {
   double build_ms = 0;
   uint64_t pairs0 = 0, pairs = 0, collides = 0, uncollides = 0, set_hash = 0, chain = 0;
   uint64_t errors = 0, swaps = 0, tests = 0, global_frames = 0, local_frames = 0;
+  // With a margin: pairs reported beyond / missing from the exact set, and updates absorbed by
+  // fat boxes, over all frames of the first run.
+  uint64_t false_pos = 0, false_neg = 0, fat_skips = 0, error_frames = 0;
   bp::Stats last;  // the engine's counters after the last frame of the last run
 };
 
@@ -131,22 +137,44 @@ bp::DynamicOctreeOptions OctreeOptions(const Config& cfg) {
   return options;
 }
 
+// The engine of cfg; margin is in the engine's units (the scene's cube width is 1).
 template <int K, class T>
-std::unique_ptr<bp::Broadphase<K, T>> MakeEngine(const Config& cfg) {
-  if (cfg.engine == "brute_force") return std::make_unique<bp::BruteForce<K, T>>();
-  if (cfg.engine == "dynamic_octree") {
-    return std::make_unique<bp::DynamicOctree<K, T>>(OctreeOptions(cfg));
+std::unique_ptr<bp::Broadphase<K, T>> MakeEngine(const Config& cfg, T margin) {
+  if (cfg.engine == "brute_force") {
+    return std::make_unique<bp::BruteForce<K, T>>(bp::BruteForceOptions(), margin);
   }
-  if (cfg.engine == "batch_sap") return std::make_unique<bp::BatchSap<K, T>>(BatchOptions(cfg));
+  if (cfg.engine == "dynamic_octree") {
+    return std::make_unique<bp::DynamicOctree<K, T>>(OctreeOptions(cfg), margin);
+  }
+  if (cfg.engine == "batch_sap") {
+    return std::make_unique<bp::BatchSap<K, T>>(BatchOptions(cfg), margin);
+  }
   if (cfg.engine == "grid_segmented_sap") {
     return std::make_unique<bp::GridSegmentedSap<K, T>>(
-        MakeGridOptions<bp::GridSegmentedSapOptions>(cfg, SapOptions(cfg)));
+        MakeGridOptions<bp::GridSegmentedSapOptions>(cfg, SapOptions(cfg)), margin);
   }
   if (cfg.engine == "grid_batch_sap") {
     return std::make_unique<bp::GridBatchSap<K, T>>(
-        MakeGridOptions<bp::GridBatchSapOptions>(cfg, BatchOptions(cfg)));
+        MakeGridOptions<bp::GridBatchSapOptions>(cfg, BatchOptions(cfg)), margin);
   }
-  return std::make_unique<bp::SegmentedSap<K, T>>(SapOptions(cfg));
+  return std::make_unique<bp::SegmentedSap<K, T>>(SapOptions(cfg), margin);
+}
+
+// The engine's overlap set as sorted pair keys.
+template <int K, class T>
+std::vector<uint64_t> SortedPairs(const bp::Broadphase<K, T>& engine) {
+  std::vector<uint64_t> out;
+  out.reserve(engine.GetStats().overlaps);
+  engine.ForEachOverlap([&](uint64_t a, uint64_t b) { out.push_back(bp::workload::PairKey(a, b)); });
+  std::sort(out.begin(), out.end());
+  return out;
+}
+
+// The options of the never-moving boxes added to a scene: static with --static-rest.
+bp::ObjectOptions StaticIf(const Config& cfg) {
+  bp::ObjectOptions o;
+  o.is_static = cfg.static_rest;
+  return o;
 }
 
 // The large-object scene: the scene plus one box over the whole world and big_boxes boxes of
@@ -162,7 +190,7 @@ void AddStaticBoxes(const Config& cfg, const SceneParams& p, bp::Broadphase<K, T
       b.lo[a] = static_cast<T>(-1);
       b.hi[a] = static_cast<T>(side + 1);
     }
-    if (!engine->Insert(id++, b).ok()) std::fprintf(stderr, "bpbench: world box refused\n");
+    if (!engine->Insert(id++, b, StaticIf(cfg)).ok()) std::fprintf(stderr, "bpbench: world box refused\n");
   }
   uint64_t state = p.seed ^ 0xB16B0E5;
   for (uint32_t i = 0; i < cfg.big_boxes; ++i) {
@@ -173,7 +201,7 @@ void AddStaticBoxes(const Config& cfg, const SceneParams& p, bp::Broadphase<K, T
       b.lo[a] = static_cast<T>(lo);
       b.hi[a] = static_cast<T>(lo + cfg.big_width);
     }
-    if (!engine->Insert(id++, b).ok()) std::fprintf(stderr, "bpbench: big box refused\n");
+    if (!engine->Insert(id++, b, StaticIf(cfg)).ok()) std::fprintf(stderr, "bpbench: big box refused\n");
   }
 }
 
@@ -181,16 +209,42 @@ template <int K, class T>
 Result RunTyped(const SceneParams& params, int frames, const Config& cfg,
                 const std::string& label) {
   Result r;
+  const bool fat = cfg.margin > 0;
   for (int rep = 0; rep < cfg.repeats; ++rep) {
-    auto engine = MakeEngine<K, T>(cfg);
+    auto engine = MakeEngine<K, T>(cfg, static_cast<T>(cfg.margin));
     AddStaticBoxes<K, T>(cfg, params, engine.get());
-    bp::workload::SceneRunner<K, T> runner(*engine, params);
+    bp::workload::SceneRunner<K, T> runner(*engine, params, cfg.static_rest);
+    // With a margin, the first run also drives an exact engine through the same scene, untimed,
+    // and compares the overlap sets after every frame.
+    std::unique_ptr<bp::Broadphase<K, T>> exact;
+    std::unique_ptr<bp::workload::SceneRunner<K, T>> exact_runner;
+    if (fat && rep == 0) {
+      exact = MakeEngine<K, T>(cfg, T{});
+      AddStaticBoxes<K, T>(cfg, params, exact.get());
+      exact_runner =
+          std::make_unique<bp::workload::SceneRunner<K, T>>(*exact, params, cfg.static_rest);
+      exact_runner->Build();
+    }
     double build = runner.Build();
     if (rep == 0) r.build_ms = build;
     std::vector<double> run;
     for (int f = 1; f <= frames; ++f) {
       run.push_back(runner.Step());
       bp::Stats s = engine->GetStats();
+      if (exact_runner) {
+        exact_runner->Step();
+        std::vector<uint64_t> got = SortedPairs(*engine), want = SortedPairs(*exact);
+        std::vector<uint64_t> diff;
+        std::set_difference(got.begin(), got.end(), want.begin(), want.end(),
+                            std::back_inserter(diff));
+        r.false_pos += diff.size();
+        diff.clear();
+        std::set_difference(want.begin(), want.end(), got.begin(), got.end(),
+                            std::back_inserter(diff));
+        r.false_neg += diff.size();
+        r.fat_skips += s.fat_skips;
+        ++r.error_frames;
+      }
       r.swaps += s.swaps;
       r.tests += s.overlap_tests;
       (s.global_sort ? r.global_frames : r.local_frames) += 1;
@@ -259,6 +313,14 @@ void PrintJson(const std::string& scenario, const SceneParams& p, int frames, co
     o << ",\"sort\":\"" << cfg.sort << "\",\"global_fraction\":" << fraction;
   }
   if (!cfg.variant.empty()) o << ",\"variant\":\"" << cfg.variant << "\"";
+  if (cfg.static_rest) o << ",\"static_rest\":true";
+  if (cfg.margin > 0) {
+    const double ef = static_cast<double>(std::max<uint64_t>(r.error_frames, 1));
+    o << ",\"margin\":" << cfg.margin
+      << ",\"false_pos_per_frame\":" << static_cast<double>(r.false_pos) / ef
+      << ",\"false_neg_per_frame\":" << static_cast<double>(r.false_neg) / ef
+      << ",\"fat_skips_per_frame\":" << static_cast<double>(r.fat_skips) / ef;
+  }
   if (cfg.world_box || cfg.big_boxes != 0) {
     o << ",\"world_box\":" << cfg.world_box << ",\"big_boxes\":" << cfg.big_boxes
       << ",\"big_width\":" << cfg.big_width;
@@ -437,6 +499,17 @@ int main(int argc, char** argv) {
       ->check(CLI::Range(0.0, 1e6))
       ->capture_default_str();
   app.add_flag("--world-box", cfg.world_box, "add one static box covering the whole scene");
+  app.add_option("--margin", cfg.margin,
+                 "fattened boxes: margin in cube widths (0: exact); reports false positives and "
+                 "negatives per frame against an exact engine run alongside (untimed)")
+      ->check(CLI::Range(0.0, 1e6))
+      ->capture_default_str();
+  app.add_flag("--static-rest", cfg.static_rest,
+               "insert the objects of resting slots as static (no static-static pairs; the golden "
+               "hashes no longer apply)");
+  std::vector<double> margin_sweep;
+  app.add_option("--margin-sweep", margin_sweep,
+                 "run each scenario once per margin (cube widths): error against run time");
   app.add_option("--threads", cfg.threads, "grid engines: threads applying the cells")
       ->check(CLI::Range(1u, 256u))
       ->capture_default_str();
@@ -488,6 +561,11 @@ int main(int argc, char** argv) {
       ->capture_default_str();
   CLI11_PARSE(app, argc, argv);
   cfg.progress = isatty(STDERR_FILENO) != 0;
+  if ((cfg.margin > 0 || !margin_sweep.empty()) && cfg.coord == "int32") {
+    std::fprintf(stderr, "bpbench: --margin needs float or double coordinates\n");
+    return 2;
+  }
+  if (margin_sweep.empty()) margin_sweep.push_back(cfg.margin);
 
   if (sweep) {
     ThresholdSweep(cfg, sweep_sizes);
@@ -523,9 +601,15 @@ int main(int argc, char** argv) {
       return 2;
     }
     int frames = cfg.frames > 0 ? cfg.frames : static_cast<int>(g->frames);
-    Result r = Run(g->Params(), frames, cfg, name + " " + cfg.engine);
-    PrintJson(name, g->Params(), frames, cfg, r, g, "");
-    if (r.errors != 0) status = 1;
+    for (double margin : margin_sweep) {
+      Config run_cfg = cfg;
+      run_cfg.margin = margin;
+      Result r = Run(g->Params(), frames, run_cfg, name + " " + cfg.engine);
+      // Golden values hold only for the exact scene.
+      const bool exact_scene = margin == 0 && !cfg.static_rest;
+      PrintJson(name, g->Params(), frames, run_cfg, r, exact_scene ? g : nullptr, "");
+      if (r.errors != 0) status = 1;
+    }
   }
   return status;
 }

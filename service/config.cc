@@ -1,6 +1,7 @@
 #include "config.h"
 
 #include <algorithm>
+#include <cmath>
 #include <cerrno>
 #include <cstdio>
 #include <cstdlib>
@@ -55,8 +56,6 @@ constexpr size_t kMaxConfigFileBytes = 1u << 20;
 
 // Engines that partition space into cells.
 bool IsGridAlgorithm(std::string_view algorithm) { return algorithm.starts_with("grid_"); }
-// Engines that keep fattened boxes and so accept a margin (none yet).
-bool SupportsMargin(std::string_view /*algorithm*/) { return false; }
 // Engines whose Query runs on more than one thread: the grids apply their cells in parallel.
 bool IsMultiThreaded(std::string_view algorithm) { return IsGridAlgorithm(algorithm); }
 
@@ -183,10 +182,6 @@ void CheckCrossKeys(YamlReader& r, Config* c) {
   // except where every algorithm agrees.
   if (!r.HasError("engine.algorithm")) {
     std::string quoted = YamlReader::Quote(e.algorithm);
-    if (e.margin != 0 && margin_mark && !SupportsMargin(e.algorithm)) {
-      r.Error(*margin_mark, "engine.margin",
-              "algorithm " + quoted + " has no fattened boxes; only 0 (exact) is supported");
-    }
     auto cell_mark = r.MarkOf("engine.cell_size");
     if (e.cell_size && cell_mark && !IsGridAlgorithm(e.algorithm)) {
       r.Warning(*cell_mark, "engine.cell_size",
@@ -198,10 +193,14 @@ void CheckCrossKeys(YamlReader& r, Config* c) {
                 "engine " + quoted + " is single-threaded; threads = " + std::to_string(e.threads) +
                     " has no effect");
     }
-  } else if (e.margin != 0 && margin_mark &&
-             std::none_of(kAlgorithms.begin(), kAlgorithms.end(), SupportsMargin)) {
+  }
+  // Every engine keeps fattened boxes through the shared front end; an integer engine needs an
+  // integral margin.
+  if (margin_mark && e.coordinate == CoordinateType::kInt32 && !r.HasError("engine.coordinate") &&
+      (std::trunc(e.margin) != e.margin || e.margin > 2147483647.0)) {
     r.Error(*margin_mark, "engine.margin",
-            "no algorithm has fattened boxes yet; only 0 (exact) is supported");
+            "int32 coordinates need an integral margin below 2^31; got " +
+                YamlReader::FormatNumber(e.margin));
   }
   // The shipped file spells out every default, tick_ms included; only a changed value means the
   // author expected ticks.

@@ -7,7 +7,7 @@
 // Invariants of a Config returned by ParseConfig or LoadConfigFile:
 //  1. Every member is within the range written beside it; engine.algorithm is in kAlgorithms;
 //     logging.level is in kLogLevels; topic names are non-empty, of [A-Za-z0-9_/] only, and differ.
-//  2. engine.margin == 0 (no current algorithm fattens boxes).
+//  2. engine.margin is integral (and below 2^31) when engine.coordinate is int32.
 //  3. `warnings` lists accepted but ineffective settings, one line each, in the errors' format.
 #pragma once
 
@@ -47,7 +47,7 @@ struct EngineConfig {
   CoordinateType coordinate = CoordinateType::kFloat;  ///< yaml: float | double | int32
   std::optional<double> cell_size;  ///< yaml: "auto" (nullopt, default) or a positive finite number
   int threads = 1;                  ///< >= 1, <= 256
-  double margin = 0.0;              ///< >= 0, finite
+  double margin = 0.0;  ///< >= 0, finite; > 0 fattens boxes (events are then approximate)
 
   /// Member-wise equality.
   bool operator==(const EngineConfig&) const = default;

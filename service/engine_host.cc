@@ -3,8 +3,6 @@
 #include <cmath>
 #include <limits>
 #include <type_traits>
-#include <unordered_map>
-#include <unordered_set>
 
 #include "bp/batch_sap.h"
 #include "bp/brute_force.h"
@@ -14,16 +12,6 @@
 
 namespace bp::service {
 namespace {
-
-struct Filter {
-  uint64_t category = 1;
-  uint64_t mask = ~uint64_t{0};
-  bool operator==(const Filter&) const = default;
-};
-
-bool Passes(const Filter& a, const Filter& b) {
-  return (a.category & b.mask) != 0 && (b.category & a.mask) != 0;
-}
 
 std::string ItemName(wire::Op op, uint32_t index, uint64_t id) {
   const char* what = op == wire::OP_INSERT ? "insert" : op == wire::OP_UPDATE ? "update" : "erase";
@@ -109,11 +97,6 @@ class TypedHost final : public EngineHost {
       }
       --objects_;
       ++out->erases;
-      if (inserted_this_frame_.erase(key) > 0) {
-        filters_.erase(key);  // inserted and erased within the frame: no event names it
-      } else {
-        erased_this_frame_.insert(key);
-      }
     }
     ApplyBoxes(batch, wire::OP_INSERT, batch.inserts(), refuse, out);
     ApplyBoxes(batch, wire::OP_UPDATE, batch.updates(), refuse, out);
@@ -123,30 +106,22 @@ class TypedHost final : public EngineHost {
     uncollide->clear();
     collide->clear();
     struct Sink final : EventSink<uint64_t> {
-      TypedHost* host;
       std::vector<uint64_t>* uncollide;
       std::vector<uint64_t>* collide;
       void Collide(const uint64_t& a, const uint64_t& b) override {
-        if (!host->Reported(a, b)) return;
         collide->push_back(a);
         collide->push_back(b);
       }
       void Uncollide(const uint64_t& a, const uint64_t& b) override {
-        if (!host->Reported(a, b)) return;
         uncollide->push_back(a);
         uncollide->push_back(b);
       }
     } sink;
-    sink.host = this;
     sink.uncollide = uncollide;
     sink.collide = collide;
     engine_->Query(sink);
     overlaps_ += collide->size() / 2;
     overlaps_ -= uncollide->size() / 2;
-    // Erased objects' filters were needed for their uncollides; drop them now.
-    for (uint64_t key : erased_this_frame_) filters_.erase(key);
-    erased_this_frame_.clear();
-    inserted_this_frame_.clear();
   }
 
   uint64_t Objects() const override { return objects_; }
@@ -156,15 +131,6 @@ class TypedHost final : public EngineHost {
   int Dimension() const override { return K; }
 
  private:
-  bool Reported(uint64_t a, uint64_t b) const {
-    if (filters_.empty()) return true;
-    return Passes(FilterOf(a), FilterOf(b));
-  }
-  Filter FilterOf(uint64_t key) const {
-    auto it = filters_.find(key);
-    return it == filters_.end() ? Filter{} : it->second;
-  }
-
   // Checks the shape of a box array; on failure rejects every item with the reason.
   template <class Refuse>
   bool CheckShape(const wire::UpdateBatch& batch, wire::Op op, const wire::BoxArray& boxes,
@@ -269,23 +235,17 @@ class TypedHost final : public EngineHost {
         }
         continue;
       }
-      Filter filter;
-      if (boxes.category_size() > 0) filter.category = boxes.category(i);
-      if (boxes.mask_size() > 0) filter.mask = boxes.mask(i);
-      const bool reinsert = erased_this_frame_.count(key) > 0;
-      if (reinsert && !(FilterOf(key) == filter)) {
-        refuse(op, index, id, wire::BAD_ATTRIBUTE,
-               "reinserted in the frame that erased it with another category or mask; end the "
-               "frame between the erase and the insert");
-        continue;
-      }
+      ObjectOptions options;
+      if (boxes.category_size() > 0) options.category = boxes.category(i);
+      if (boxes.mask_size() > 0) options.mask = boxes.mask(i);
+      if (boxes.static_flags_size() > 0) options.is_static = boxes.static_flags(i);
       if (objects_ >= max_objects_) {
         refuse(
             op, index, id, wire::CAPACITY,
             "the daemon holds limits.max_objects = " + std::to_string(max_objects_) + " objects");
         continue;
       }
-      Status s = engine_->Insert(key, box);
+      Status s = engine_->Insert(key, box, options);
       if (s.code() == StatusCode::kAlreadyExists) {
         refuse(op, index, id, wire::DUPLICATE_INSERT,
                "producer " + std::to_string(producer) + " already has an object with this id");
@@ -297,12 +257,6 @@ class TypedHost final : public EngineHost {
       }
       ++objects_;
       ++out->inserts;
-      if (reinsert) {
-        erased_this_frame_.erase(key);
-      } else {
-        inserted_this_frame_.insert(key);
-        if (!(filter == Filter{})) filters_[key] = filter;
-      }
     }
   }
 
@@ -310,35 +264,31 @@ class TypedHost final : public EngineHost {
   uint64_t max_objects_;
   uint64_t objects_ = 0;
   uint64_t overlaps_ = 0;
-  // Non-default filters of live objects, and of objects erased since the last query (their
-  // uncollides are filtered like their collides were).
-  std::unordered_map<uint64_t, Filter> filters_;
-  // Keys live at the last query and erased since (not reinserted), and keys inserted since.
-  std::unordered_set<uint64_t> erased_this_frame_;
-  std::unordered_set<uint64_t> inserted_this_frame_;
 };
 
 template <int K, class T>
 Status Make(const EngineConfig& config, uint64_t max_objects, std::unique_ptr<EngineHost>* out) {
   std::unique_ptr<Broadphase<K, T, uint64_t>> engine;
+  // The config refuses a fractional margin for int32, so the conversion is exact there.
+  const T margin = static_cast<T>(config.margin);
   if (config.algorithm == "brute_force") {
-    engine = std::make_unique<BruteForce<K, T, uint64_t>>();
+    engine = std::make_unique<BruteForce<K, T, uint64_t>>(BruteForceOptions(), margin);
   } else if (config.algorithm == "segmented_sap") {
-    engine = std::make_unique<SegmentedSap<K, T, uint64_t>>();
+    engine = std::make_unique<SegmentedSap<K, T, uint64_t>>(SegmentedSapOptions(), margin);
   } else if (config.algorithm == "batch_sap") {
-    engine = std::make_unique<BatchSap<K, T, uint64_t>>();
+    engine = std::make_unique<BatchSap<K, T, uint64_t>>(BatchSapOptions(), margin);
   } else if (config.algorithm == "grid_segmented_sap") {
     GridSegmentedSapOptions options;
     options.cell_size = config.cell_size.value_or(0.0);
     options.threads = static_cast<unsigned>(config.threads);
-    engine = std::make_unique<GridSegmentedSap<K, T, uint64_t>>(options);
+    engine = std::make_unique<GridSegmentedSap<K, T, uint64_t>>(options, margin);
   } else if (config.algorithm == "grid_batch_sap") {
     GridBatchSapOptions options;
     options.cell_size = config.cell_size.value_or(0.0);
     options.threads = static_cast<unsigned>(config.threads);
-    engine = std::make_unique<GridBatchSap<K, T, uint64_t>>(options);
+    engine = std::make_unique<GridBatchSap<K, T, uint64_t>>(options, margin);
   } else if (config.algorithm == "dynamic_octree") {
-    engine = std::make_unique<DynamicOctree<K, T, uint64_t>>();
+    engine = std::make_unique<DynamicOctree<K, T, uint64_t>>(DynamicOctreeOptions(), margin);
   } else {
     return Status(StatusCode::kInvalidArgument,
                   "unknown engine algorithm '" + config.algorithm +

@@ -8,10 +8,10 @@
 // rounded outward (lo down, hi up), so a conversion never loses a pair; an integer engine takes
 // integral values in range only.
 //
-// Category/mask filtering (Box2D's rule: a pair is reported iff (cat_a & mask_b) != 0 and
-// (cat_b & mask_a) != 0) is applied to the engine's events. An object's category and mask are
-// fixed from insert to erase, so the filter of a pair never changes while it overlaps and the
-// filtered events stay the exact difference of the filtered overlap sets.
+// An insert's category, mask and static flag become the engine object's ObjectOptions: the engine
+// itself never tracks the pairs they reject (bp/object_options.h: the category/mask rule of Box2D
+// and Bullet; static objects never pair with each other). They are fixed from insert to erase; an
+// erase and reinsert in one frame may change them, and only real status changes are reported.
 //
 // Thread safety: not thread-safe; the daemon's loop is its only caller.
 // Invariants: Objects() is the engine's live count as of the calls made so far (buffered

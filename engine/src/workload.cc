@@ -74,6 +74,7 @@ Scene::Scene(const SceneParams& params) : params_(params), rng_(params.seed) {
     RandomPosition(slot);
     if (i < params_.moving) RandomVelocity(slot);
     initial_.push_back(BoxOf(slot));
+    initial_.back().moves = i < params_.moving;
   }
   next_id_ = params_.n;
 }
@@ -138,6 +139,7 @@ void Scene::NextFrame(FrameOps* out) {
     RandomPosition(slot);
     if (i < params_.moving) RandomVelocity(slot);
     out->inserts.push_back(BoxOf(slot));
+    out->inserts.back().moves = i < params_.moving;
   }
   // 2. Motion.
   const uint32_t moving = std::min(params_.moving, n);

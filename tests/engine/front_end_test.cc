@@ -152,7 +152,7 @@ struct MarginEngines {
   static std::vector<std::pair<std::string, EngineFactory<K, T>>> All() {
     return {
         {"brute_force", [](T m) -> std::unique_ptr<Broadphase<K, T>> {
-           return std::make_unique<BruteForce<K, T>>(typename BruteForce<K, T>::Options(), m);
+           return std::make_unique<BruteForce<K, T>>(BruteForceOptions(), m);
          }},
         {"segmented_sap", [](T m) -> std::unique_ptr<Broadphase<K, T>> {
            return std::make_unique<SegmentedSap<K, T>>(SegmentedSapOptions(), m);
@@ -195,7 +195,7 @@ TYPED_TEST(FatBoxTest, EveryEngineMatchesBruteForceAndBoundsTheError) {
       std::mt19937_64 rng(seed);
       auto below = [&](int n) { return std::uniform_int_distribution<int>(0, n - 1)(rng); };
       auto engine = make(margin);
-      BruteForce<K, T> reference(typename BruteForce<K, T>::Options(), margin);
+      BruteForce<K, T> reference(BruteForceOptions(), margin);
       ModelOracle<K, T> exact, loose;  // the real boxes, and the real boxes grown by 4 margins
       auto random_box = [&]() {
         BoxT b;

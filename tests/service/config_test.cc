@@ -358,12 +358,12 @@ const RuleCase kRuleCases[] = {
     {"DuplicateTopicKey", "dds:\n  topics:\n    events: a\n    events: b\n",
      "cfg.yaml:4:5: dds.topics.events: duplicate key 'dds.topics.events' (first at line 3)"},
     // Cross-key errors.
-    {"MarginWithTheDefaultEngine", "engine:\n  margin: 0.1\n",
-     "cfg.yaml:2:11: engine.margin: algorithm 'grid_segmented_sap' has no fattened boxes; only 0 "
-     "(exact) is supported"},
-    {"MarginWithBruteForce", "engine:\n  margin: 1\n  algorithm: brute_force\n",
-     "cfg.yaml:2:11: engine.margin: algorithm 'brute_force' has no fattened boxes; only 0 "
-     "(exact) is supported"},
+    {"FractionalMarginWithInt32", "engine:\n  margin: 0.5\n  coordinate: int32\n",
+     "cfg.yaml:2:11: engine.margin: int32 coordinates need an integral margin below 2^31; got "
+     "0.5"},
+    {"HugeMarginWithInt32", "engine:\n  coordinate: int32\n  margin: 3e9\n",
+     "cfg.yaml:3:11: engine.margin: int32 coordinates need an integral margin below 2^31; got "
+     "3e+09"},
     // YAML itself.
     {"UnclosedFlowSequence", "engine:\n  threads: [1, 2\n",
      "cfg.yaml:3:1: YAML syntax error: end of sequence flow not found"},
@@ -389,7 +389,7 @@ TEST(ConfigErrors, EveryProblemIsReportedInDocumentOrder) {
       "  dimensions: 3\n"          // 2  unknown key
       "  algorithm: sap\n"         // 3  unknown algorithm
       "  threads: 3x\n"            // 4  trailing garbage
-      "  margin: 0.5\n"            // 5  margin (cross-key; algorithm invalid, still reported)
+      "  margin: -0.5\n"           // 5  out of range
       "dds:\n"                     // 6
       "  domain: 300\n"            // 7  out of range
       "  topics:\n"                // 8
@@ -408,7 +408,7 @@ TEST(ConfigErrors, EveryProblemIsReportedInDocumentOrder) {
       "cfg.yaml:2:3: engine.dimensions: unknown key",
       "cfg.yaml:3:14: engine.algorithm: unknown algorithm 'sap'",
       "cfg.yaml:4:12: engine.threads: expected an integer, got '3x'",
-      "cfg.yaml:5:11: engine.margin: no algorithm has fattened boxes yet",
+      "cfg.yaml:5:11: engine.margin: must be >= 0, got -0.5",
       "cfg.yaml:7:11: dds.domain: must be between 0 and 232, got 300",
       "cfg.yaml:9:14: dds.topics.updates: topic name 'bp_events' is also used by",
       "cfg.yaml:10:14: dds.partition: expected a string, got a sequence",
@@ -520,6 +520,16 @@ TEST(ConfigValues, NumbersTakeTheUsualSpellings) {
 
 // ---------------------------------------------------------------------------------------------
 // Warnings: accepted, but noteworthy.
+
+TEST(ConfigValues, MarginIsAcceptedByEveryEngine) {
+  for (const char* algorithm : {"grid_segmented_sap", "brute_force", "dynamic_octree"}) {
+    Config c = ParseOk(std::string("engine:\n  algorithm: ") + algorithm + "\n  margin: 0.25\n");
+    EXPECT_TRUE(c.warnings.empty()) << algorithm;
+    EXPECT_EQ(c.engine.margin, 0.25);
+  }
+  Config c = ParseOk("engine:\n  coordinate: int32\n  margin: 2\n");
+  EXPECT_EQ(c.engine.margin, 2.0);
+}
 
 TEST(ConfigWarnings, CellSizeForANonGridEngine) {
   Config c = ParseOk("engine:\n  algorithm: segmented_sap\n  cell_size: 0.5\n");

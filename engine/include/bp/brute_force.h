@@ -20,6 +20,10 @@
 #include "bp/detail/sweep.h"
 
 namespace bp {
+
+/// The oracle has nothing to tune.
+struct BruteForceOptions {};
+
 namespace detail {
 
 template <int K, Coordinate T>
@@ -30,7 +34,7 @@ class BruteForceCore {
   static constexpr const char* kName = "brute_force";
   // Pair keys pack two handles; 0xFFFFFFFF stays free so no pair key is all ones.
   static constexpr size_t kMaxHandles = 0xFFFFFFFFu;
-  struct Options {};
+  using Options = BruteForceOptions;
 
   explicit BruteForceCore(const Options& /*options*/ = Options()) {}
 

@@ -17,13 +17,17 @@ namespace bp::workload {
 template <int K, Coordinate T>
 class SceneRunner {
  public:
-  SceneRunner(Broadphase<K, T>& engine, const SceneParams& params)
-      : engine_(engine), scene_(params) {}
+  /// static_rest: objects of resting slots are inserted static (no static-static pairs; the
+  /// golden hashes then no longer apply).
+  SceneRunner(Broadphase<K, T>& engine, const SceneParams& params, bool static_rest = false)
+      : engine_(engine), scene_(params), static_rest_(static_rest) {}
 
   /// Inserts frame 0 and queries it; returns the milliseconds taken.
   double Build() {
     auto start = Clock::now();
-    for (const SceneBox& b : scene_.Initial()) Check(engine_.Insert(b.id, Convert(b)), b.id);
+    for (const SceneBox& b : scene_.Initial()) {
+      Check(engine_.Insert(b.id, Convert(b), Options(b)), b.id);
+    }
     engine_.Query(sink_);
     double ms = Ms(start);
     pairs_frame0_ = sink_.hash.pairs();
@@ -40,7 +44,9 @@ class SceneRunner {
     auto start = Clock::now();
     for (uint64_t id : ops_.erases) Check(engine_.Erase(id), id);
     for (const SceneBox& b : ops_.updates) Check(engine_.Update(b.id, Convert(b)), b.id);
-    for (const SceneBox& b : ops_.inserts) Check(engine_.Insert(b.id, Convert(b)), b.id);
+    for (const SceneBox& b : ops_.inserts) {
+      Check(engine_.Insert(b.id, Convert(b), Options(b)), b.id);
+    }
     engine_.Query(sink_);
     double ms = Ms(start);
     collides_ += sink_.collides - collides;
@@ -82,6 +88,11 @@ class SceneRunner {
     return std::chrono::duration<double, std::milli>(Clock::now() - start).count();
   }
   Box<K, T> Convert(const SceneBox& b) const { return ToBox<K, T>(b, scene_.grid()); }
+  ObjectOptions Options(const SceneBox& b) const {
+    ObjectOptions o;
+    o.is_static = static_rest_ && !b.moves;
+    return o;
+  }
   void Check(const Status& s, uint64_t id) {
     if (s.ok()) return;
     if (errors_++ == 0) first_error_ = "id " + std::to_string(id) + ": " + s.ToString();
@@ -89,6 +100,7 @@ class SceneRunner {
 
   Broadphase<K, T>& engine_;
   Scene scene_;
+  bool static_rest_;
   FrameOps ops_;
   HashSink sink_;
   HashChain chain_;

@@ -58,6 +58,7 @@ struct SceneBox {
   uint64_t id = 0;
   std::array<float, 3> lo{};
   std::array<float, 3> hi{};
+  bool moves = false;  ///< its slot is a moving one (else it rests for its whole life)
 };
 
 /// The operations of one frame, to be applied as removals, then moves, then insertions.
