@@ -53,8 +53,8 @@ struct Config {
   unsigned threads = 1;    // grid engines
   uint32_t big_boxes = 0;  // static boxes of big_width cube widths added to the scene
   double big_width = 50;
-  bool world_box = false;  // one static box covering the whole scene
-  double margin = 0;        // fattened boxes' margin in cube widths (0: exact)
+  bool world_box = false;    // one static box covering the whole scene
+  double margin = 0;         // fattened boxes' margin in cube widths (0: exact)
   bool static_rest = false;  // resting slots' objects inserted static
   uint32_t octree_capacity = bp::DynamicOctreeOptions().max_objects_per_node;
   uint32_t octree_depth = bp::DynamicOctreeOptions().max_depth;
@@ -165,7 +165,8 @@ template <int K, class T>
 std::vector<uint64_t> SortedPairs(const bp::Broadphase<K, T>& engine) {
   std::vector<uint64_t> out;
   out.reserve(engine.GetStats().overlaps);
-  engine.ForEachOverlap([&](uint64_t a, uint64_t b) { out.push_back(bp::workload::PairKey(a, b)); });
+  engine.ForEachOverlap(
+      [&](uint64_t a, uint64_t b) { out.push_back(bp::workload::PairKey(a, b)); });
   std::sort(out.begin(), out.end());
   return out;
 }
@@ -190,7 +191,8 @@ void AddStaticBoxes(const Config& cfg, const SceneParams& p, bp::Broadphase<K, T
       b.lo[a] = static_cast<T>(-1);
       b.hi[a] = static_cast<T>(side + 1);
     }
-    if (!engine->Insert(id++, b, StaticIf(cfg)).ok()) std::fprintf(stderr, "bpbench: world box refused\n");
+    if (!engine->Insert(id++, b, StaticIf(cfg)).ok())
+      std::fprintf(stderr, "bpbench: world box refused\n");
   }
   uint64_t state = p.seed ^ 0xB16B0E5;
   for (uint32_t i = 0; i < cfg.big_boxes; ++i) {
@@ -201,7 +203,8 @@ void AddStaticBoxes(const Config& cfg, const SceneParams& p, bp::Broadphase<K, T
       b.lo[a] = static_cast<T>(lo);
       b.hi[a] = static_cast<T>(lo + cfg.big_width);
     }
-    if (!engine->Insert(id++, b, StaticIf(cfg)).ok()) std::fprintf(stderr, "bpbench: big box refused\n");
+    if (!engine->Insert(id++, b, StaticIf(cfg)).ok())
+      std::fprintf(stderr, "bpbench: big box refused\n");
   }
 }
 

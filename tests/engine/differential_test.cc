@@ -19,11 +19,11 @@ namespace {
 // How a scenario draws its operations.
 struct Scenario {
   const char* name;
-  int lattice;        // coordinates are integers in [-lattice, lattice]
-  int max_extent;     // box extents are in [0, max_extent]
-  int initial;        // objects inserted before the first query
-  int frames;         // queries after the first
-  int ops_per_frame;  // upper bound of random operations per frame
+  int lattice;            // coordinates are integers in [-lattice, lattice]
+  int max_extent;         // box extents are in [0, max_extent]
+  int initial;            // objects inserted before the first query
+  int frames;             // queries after the first
+  int ops_per_frame;      // upper bound of random operations per frame
   bool filtered = false;  // objects get random categories, masks and static flags
 };
 

@@ -38,13 +38,10 @@ Box<K, T> Cube(T lo, T hi) {
 template <class Config>
 class OptionsTest : public ::testing::Test {};
 
-using OptionEngines =
-    ::testing::Types<EngineConfig<3, float, MakeBruteForce>,
-                     EngineConfig<3, float, MakeSegmentedSap<32, 7>>,
-                     EngineConfig<2, double, MakeBatchSap<7>>,
-                     EngineConfig<3, double, MakeDynamicOctree<>>,
-                     EngineConfig<3, float, MakeGrid<false, 0>>,
-                     EngineConfig<2, int32_t, MakeGrid<true, 10, 4>>>;
+using OptionEngines = ::testing::Types<
+    EngineConfig<3, float, MakeBruteForce>, EngineConfig<3, float, MakeSegmentedSap<32, 7>>,
+    EngineConfig<2, double, MakeBatchSap<7>>, EngineConfig<3, double, MakeDynamicOctree<>>,
+    EngineConfig<3, float, MakeGrid<false, 0>>, EngineConfig<2, int32_t, MakeGrid<true, 10, 4>>>;
 TYPED_TEST_SUITE(OptionsTest, OptionEngines);
 
 TYPED_TEST(OptionsTest, ReinsertWithOtherOptionsReportsOnlyRealChanges) {
@@ -121,9 +118,9 @@ TYPED_TEST(OptionsTest, StaticWorldPairsOnlyWithMovers) {
   // A row of 200 touching static boxes and 4 dynamic boxes among them.
   for (uint64_t i = 0; i < 200; ++i) {
     T lo = static_cast<T>(i);
-    ASSERT_TRUE(engine->Insert(i, Cube<K, T>(lo, static_cast<T>(lo + 1)),
-                               ObjectOptions{.is_static = true})
-                    .ok());
+    ASSERT_TRUE(
+        engine->Insert(i, Cube<K, T>(lo, static_cast<T>(lo + 1)), ObjectOptions{.is_static = true})
+            .ok());
   }
   for (uint64_t i = 0; i < 4; ++i) {
     T lo = static_cast<T>(50 * i + 10);
@@ -151,22 +148,28 @@ template <int K, class T>
 struct MarginEngines {
   static std::vector<std::pair<std::string, EngineFactory<K, T>>> All() {
     return {
-        {"brute_force", [](T m) -> std::unique_ptr<Broadphase<K, T>> {
+        {"brute_force",
+         [](T m) -> std::unique_ptr<Broadphase<K, T>> {
            return std::make_unique<BruteForce<K, T>>(BruteForceOptions(), m);
          }},
-        {"segmented_sap", [](T m) -> std::unique_ptr<Broadphase<K, T>> {
+        {"segmented_sap",
+         [](T m) -> std::unique_ptr<Broadphase<K, T>> {
            return std::make_unique<SegmentedSap<K, T>>(SegmentedSapOptions(), m);
          }},
-        {"batch_sap", [](T m) -> std::unique_ptr<Broadphase<K, T>> {
+        {"batch_sap",
+         [](T m) -> std::unique_ptr<Broadphase<K, T>> {
            return std::make_unique<BatchSap<K, T>>(BatchSapOptions(), m);
          }},
-        {"dynamic_octree", [](T m) -> std::unique_ptr<Broadphase<K, T>> {
+        {"dynamic_octree",
+         [](T m) -> std::unique_ptr<Broadphase<K, T>> {
            return std::make_unique<DynamicOctree<K, T>>(DynamicOctreeOptions(), m);
          }},
-        {"grid_segmented_sap", [](T m) -> std::unique_ptr<Broadphase<K, T>> {
+        {"grid_segmented_sap",
+         [](T m) -> std::unique_ptr<Broadphase<K, T>> {
            return std::make_unique<GridSegmentedSap<K, T>>(GridSegmentedSapOptions(), m);
          }},
-        {"grid_batch_sap_small_cells", [](T m) -> std::unique_ptr<Broadphase<K, T>> {
+        {"grid_batch_sap_small_cells",
+         [](T m) -> std::unique_ptr<Broadphase<K, T>> {
            GridBatchSapOptions options;
            options.cell_size = 4;
            options.max_cells_per_object = 8;
@@ -178,10 +181,10 @@ struct MarginEngines {
 
 template <class Config>
 class FatBoxTest : public ::testing::Test {};
-using FatShapes = ::testing::Types<EngineConfig<2, float, MakeBruteForce>,
-                                   EngineConfig<3, float, MakeBruteForce>,
-                                   EngineConfig<3, double, MakeBruteForce>,
-                                   EngineConfig<2, int32_t, MakeBruteForce>>;
+using FatShapes =
+    ::testing::Types<EngineConfig<2, float, MakeBruteForce>, EngineConfig<3, float, MakeBruteForce>,
+                     EngineConfig<3, double, MakeBruteForce>,
+                     EngineConfig<2, int32_t, MakeBruteForce>>;
 TYPED_TEST_SUITE(FatBoxTest, FatShapes);
 
 TYPED_TEST(FatBoxTest, EveryEngineMatchesBruteForceAndBoundsTheError) {
@@ -245,7 +248,7 @@ TYPED_TEST(FatBoxTest, EveryEngineMatchesBruteForceAndBoundsTheError) {
             }
             if (kind == 1) {
               b = random_box();  // teleport
-            } else {           // a small step, or a shrink that leaves a loose fat box
+            } else {             // a small step, or a shrink that leaves a loose fat box
               for (size_t a = 0; a < static_cast<size_t>(K); ++a) {
                 T d = static_cast<T>(below(3) - 1);
                 b.lo[a] = static_cast<T>(b.lo[a] + d);

@@ -297,8 +297,8 @@ TEST(EngineHost, EraseAndReinsertInOneBatchIsAnUpdate) {
   d.mutable_inserts()->add_static_flags(true);
   EXPECT_TRUE(Apply(*host, d).rejects.empty());
   host->Query(&unc, &col);
-  EXPECT_EQ(ToPairs(col), (PairList{{GlobalKey(1, 1), GlobalKey(1, 3)},
-                                    {GlobalKey(1, 1), GlobalKey(1, 4)}}));
+  EXPECT_EQ(ToPairs(col),
+            (PairList{{GlobalKey(1, 1), GlobalKey(1, 3)}, {GlobalKey(1, 1), GlobalKey(1, 4)}}));
 }
 
 TEST(EngineHost, FiltersMatchABruteForceFilteredOracle) {
@@ -362,8 +362,8 @@ TEST(EngineHost, OptionsStayExactAcrossSameFrameTransitions) {
     SCOPED_TRACE(algorithm);
     std::mt19937_64 rng(17);
     auto host = MakeHost(algorithm, 2, CoordinateType::kDouble);
-    std::map<uint64_t, ObjectOptions> options;  // live objects' options
-    std::map<uint64_t, Box<2, double>> boxes;   // live objects' boxes
+    std::map<uint64_t, ObjectOptions> options;   // live objects' options
+    std::map<uint64_t, Box<2, double>> boxes;    // live objects' boxes
     std::map<uint64_t, ObjectOptions> at_query;  // options of the objects live at the last query
     std::set<std::pair<uint64_t, uint64_t>> reported;
     size_t changed = 0, reinserted = 0;

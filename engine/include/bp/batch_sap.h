@@ -205,7 +205,7 @@ class BatchSapCore {
   }
   void TestAdd(uint32_t a, uint32_t b) {
     ++tests_;
-    if (tracker_.Accepts(a, b) && Overlaps(boxes_[a], boxes_[b])) tracker_.Add(a, b);
+    if (Overlaps(boxes_[a], boxes_[b])) tracker_.Add(a, b);  // Add applies the filter
   }
 
   // ---- sweep sets: a handle is in at most one at a time; slot_ is its index there ----

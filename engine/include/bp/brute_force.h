@@ -83,7 +83,7 @@ class BruteForceCore {
     for (uint32_t other : live_) {
       if (other == h) continue;
       ++tests_;
-      if (tracker_.Accepts(h, other) && Overlaps(boxes_[h], boxes_[other])) {
+      if (Overlaps(boxes_[h], boxes_[other])) {  // Add applies the filter
         tracker_.Add(h, other);
       } else {
         tracker_.Remove(h, other);

@@ -633,7 +633,7 @@ void DynamicOctreeCore<K, T>::Collect(uint32_t h, std::vector<uint32_t>* out) {
   const Box<K, T>& b = boxes_[h];
   for (const Entry& e : overflow_) {
     ++tests_;
-    if (e.handle != h && tracker_.Accepts(h, e.handle) && Overlaps(e.box, b))
+    if (e.handle != h && Overlaps(e.box, b) && tracker_.Accepts(h, e.handle))
       out->push_back(e.handle);
   }
   if (root_ == kNone) return;
@@ -652,8 +652,8 @@ void DynamicOctreeCore<K, T>::Collect(uint32_t h, std::vector<uint32_t>* out) {
     stack_.pop_back();
     for (const Entry& e : node.objects) {
       ++tests_;
-      if (e.handle != h && tracker_.Accepts(h, e.handle) && Overlaps(e.box, b))
-      out->push_back(e.handle);
+      if (e.handle != h && Overlaps(e.box, b) && tracker_.Accepts(h, e.handle))
+        out->push_back(e.handle);
     }
     if (!node.split) continue;
     // The node overlaps the box; a child does iff it does on the child's side of every plane.

@@ -16,9 +16,9 @@ namespace bp {
 
 /// Attributes fixed from an object's Insert to its Erase.
 struct ObjectOptions {
-  uint64_t category = 1;          ///< the groups the object belongs to
-  uint64_t mask = ~uint64_t{0};   ///< the groups it may pair with
-  bool is_static = false;         ///< static objects never pair with static objects
+  uint64_t category = 1;         ///< the groups the object belongs to
+  uint64_t mask = ~uint64_t{0};  ///< the groups it may pair with
+  bool is_static = false;        ///< static objects never pair with static objects
 
   friend bool operator==(const ObjectOptions&, const ObjectOptions&) = default;
 };

@@ -268,7 +268,7 @@ class SegmentedSapCore {
     if (IsMax(x.ref) && !IsMax(y.ref)) {
       // y's min moved before x's max: they may overlap now.
       ++tests_;
-      if (tracker_.Accepts(hx, hy) && Overlaps(boxes_[hx], boxes_[hy])) tracker_.Add(hx, hy);
+      if (Overlaps(boxes_[hx], boxes_[hy])) tracker_.Add(hx, hy);  // Add applies the filter
     } else if (!IsMax(x.ref) && IsMax(y.ref)) {
       // y's max moved before x's min: separated on this axis.
       tracker_.Remove(hx, hy);
@@ -599,7 +599,8 @@ class SegmentedSapCore {
         }
         for (uint32_t b : active) {
           ++tests_;
-          if (tracker_.Accepts(h, b) && Overlaps(boxes_[h], boxes_[b])) now.Insert(HandlePair(h, b));
+          if (Overlaps(boxes_[h], boxes_[b]) && tracker_.Accepts(h, b))
+            now.Insert(HandlePair(h, b));
         }
         slot[h] = static_cast<uint32_t>(active.size());
         active.push_back(h);
@@ -686,7 +687,7 @@ class SegmentedSapCore {
     ForEachSpannedChunk(h, [&](uint32_t c) { CpAdd(c, h); });
     ForEachAxis0Candidate(h, [&](uint32_t b) {
       ++tests_;
-      if (tracker_.Accepts(h, b) && Overlaps(boxes_[h], boxes_[b])) tracker_.Add(h, b);
+      if (Overlaps(boxes_[h], boxes_[b])) tracker_.Add(h, b);
     });
   }
 
@@ -819,7 +820,7 @@ class SegmentedSapCore {
       ForEachAxis0Candidate(h, [&](uint32_t b) {
         if (kOnce && b < h && live_flag_[b] == kInserting) return;
         ++tests_;
-        if (tracker_.Accepts(h, b) && Overlaps(hb.box, boxes_[b])) tracker_.Add(h, b);
+        if (Overlaps(hb.box, boxes_[b])) tracker_.Add(h, b);
       });
     }
   }

@@ -367,8 +367,8 @@ class KeyedEngine final : public Broadphase<Core::kDim, typename Core::Coord, Ke
   Core core_;
   T margin_;
   T loose_ = LooseLimit(margin_);
-  bool rekeyed_ = false;      // a key took a fresh handle since the last query
-  size_t fat_skips_ = 0;      // updates absorbed by fat boxes since the last query
+  bool rekeyed_ = false;  // a key took a fresh handle since the last query
+  size_t fat_skips_ = 0;  // updates absorbed by fat boxes since the last query
   size_t last_fat_skips_ = 0;
   std::vector<Slot> slots_;
   std::unordered_map<Key, uint32_t> handle_of_;

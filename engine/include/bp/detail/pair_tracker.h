@@ -1,8 +1,8 @@
 // bp::detail::PairTracker: the candidate set (pairs of dense handles that overlap now) and the
 // set of pairs whose status differs from the last query, from which events are drawn. It also
 // keeps each handle's ObjectOptions once any object has non-default ones: Add refuses the pairs
-// that fail Accepts, so filtered pairs never enter any set (cores ask Accepts before a box test
-// where the test can be skipped).
+// that fail Accepts, so filtered pairs never enter any set. The cores test the boxes first: in
+// their hot paths the box test usually fails, and it reads memory they touch anyway.
 //
 // Thread safety: none; owned by one engine.
 // Invariants:
