@@ -7,6 +7,7 @@
 #include <cstdlib>
 #include <exception>
 #include <filesystem>
+#include <limits>
 #include <memory>
 #include <string>
 #include <system_error>
@@ -196,6 +197,12 @@ void CheckCrossKeys(YamlReader& r, Config* c) {
   }
   // Every engine keeps fattened boxes through the shared front end; an integer engine needs an
   // integral margin.
+  if (margin_mark && e.coordinate == CoordinateType::kFloat && !r.HasError("engine.coordinate") &&
+      e.margin > static_cast<double>(std::numeric_limits<float>::max())) {
+    r.Error(*margin_mark, "engine.margin",
+            "float coordinates need a margin within the float range; got " +
+                YamlReader::FormatNumber(e.margin));
+  }
   if (margin_mark && e.coordinate == CoordinateType::kInt32 && !r.HasError("engine.coordinate") &&
       (std::trunc(e.margin) != e.margin || e.margin > 2147483647.0)) {
     r.Error(*margin_mark, "engine.margin",

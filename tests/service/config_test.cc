@@ -361,6 +361,9 @@ const RuleCase kRuleCases[] = {
     {"FractionalMarginWithInt32", "engine:\n  margin: 0.5\n  coordinate: int32\n",
      "cfg.yaml:2:11: engine.margin: int32 coordinates need an integral margin below 2^31; got "
      "0.5"},
+    {"MarginBeyondFloat", "engine:\n  margin: 1e300\n",
+     "cfg.yaml:2:11: engine.margin: float coordinates need a margin within the float range; got "
+     "1e+300"},
     {"HugeMarginWithInt32", "engine:\n  coordinate: int32\n  margin: 3e9\n",
      "cfg.yaml:3:11: engine.margin: int32 coordinates need an integral margin below 2^31; got "
      "3e+09"},

@@ -29,7 +29,9 @@
 //  2. A handle is queued at most once between queries; handles are freed only inside Query,
 //     after the core has applied the batch, so a handle never means two keys within one batch.
 //  3. erase + insert of one live key with equal options between queries becomes an update of
-//     the same handle.
+//     the same handle (unless the key was rekeyed in between: then it is a fresh handle again,
+//     and the cancellation keeps the events exact).
+//  5. A live slot's options are the ones its core's tracker holds.
 //  4. With a margin, a slot's box (what the core holds) contains the client's last box.
 #pragma once
 
@@ -87,13 +89,15 @@ class KeyedEngine final : public Broadphase<Core::kDim, typename Core::Coord, Ke
         slot.box = Fatten(box);
         return Status::Ok();
       }
-      // New options: the old handle stays erased and the key takes a fresh one (a rekey).
-      handle_of_.erase(it);
-      rekeyed_ = true;
     }
     if (free_.empty() && slots_.size() >= Core::kMaxHandles) {
       return Status(StatusCode::kResourceExhausted,
                     "insert: " + std::to_string(Core::kMaxHandles) + " objects are the limit");
+    }
+    if (it != handle_of_.end()) {
+      // New options: the old handle stays erased and the key takes a fresh one (a rekey).
+      handle_of_.erase(it);
+      rekeyed_ = true;
     }
     uint32_t h = AllocHandle();
     Slot& slot = slots_[h];
@@ -246,6 +250,9 @@ class KeyedEngine final : public Broadphase<Core::kDim, typename Core::Coord, Ke
       const Slot& slot = slots_[h];
       live += slot.live ? 1 : 0;
       queued += slot.queued ? 1 : 0;
+      if (slot.live && !(core_.tracker().options(h) == slot.options)) {
+        return fail("the tracker holds other options than the slot");
+      }
       if (Present(slot)) {
         ++present;
         auto it = handle_of_.find(slot.key);
