@@ -58,16 +58,6 @@ class Lockstep {
   BruteForce<K, T> oracle_;
 };
 
-template <int K, class T>
-Box<K, T> Cube(T lo, T hi) {
-  Box<K, T> b;
-  for (size_t a = 0; a < static_cast<size_t>(K); ++a) {
-    b.lo[a] = lo;
-    b.hi[a] = hi;
-  }
-  return b;
-}
-
 // n random cubes of extent 0..3 at integer positions in [0, 40) shifted by `at`.
 template <int K, class T>
 void InsertCluster(Lockstep<K, T>& s, uint64_t first_key, int n, T at, uint64_t seed) {

@@ -23,16 +23,6 @@ namespace {
 
 using Pair = std::pair<uint64_t, uint64_t>;
 
-template <int K, class T>
-Box<K, T> Cube(T lo, T hi) {
-  Box<K, T> b;
-  for (size_t a = 0; a < static_cast<size_t>(K); ++a) {
-    b.lo[a] = lo;
-    b.hi[a] = hi;
-  }
-  return b;
-}
-
 // ---- options ------------------------------------------------------------------------------
 
 template <class Config>

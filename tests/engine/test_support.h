@@ -22,6 +22,17 @@
 
 namespace bp::test {
 
+/// The box [lo, hi] on every axis.
+template <int K, class T>
+Box<K, T> Cube(T lo, T hi) {
+  Box<K, T> b;
+  for (size_t a = 0; a < static_cast<size_t>(K); ++a) {
+    b.lo[a] = lo;
+    b.hi[a] = hi;
+  }
+  return b;
+}
+
 /// Records the events of queries, in order.
 template <class Key = uint64_t>
 class RecordingSink final : public EventSink<Key> {
