@@ -157,6 +157,10 @@ std::unique_ptr<bp::Broadphase<K, T>> MakeEngine(const Config& cfg, T margin) {
     return std::make_unique<bp::GridBatchSap<K, T>>(
         MakeGridOptions<bp::GridBatchSapOptions>(cfg, BatchOptions(cfg)), margin);
   }
+  if (cfg.engine == "grid_dense") {
+    return std::make_unique<bp::GridDense<K, T>>(
+        MakeGridOptions<bp::GridDenseOptions>(cfg, bp::DenseCellOptions()), margin);
+  }
   return std::make_unique<bp::SegmentedSap<K, T>>(SapOptions(cfg), margin);
 }
 
@@ -484,10 +488,10 @@ int main(int argc, char** argv) {
       ->capture_default_str();
   app.add_option("--custom", custom, "a custom 3-D scene instead: N,MOVING,CHURN");
   app.add_option("--engine,-e", cfg.engine,
-                 "grid_segmented_sap, grid_batch_sap, segmented_sap, batch_sap, dynamic_octree "
-                 "or brute_force")
+                 "grid_segmented_sap, grid_batch_sap, grid_dense, segmented_sap, batch_sap, "
+                 "dynamic_octree or brute_force")
       ->check(CLI::IsMember({"segmented_sap", "batch_sap", "grid_segmented_sap", "grid_batch_sap",
-                             "dynamic_octree", "brute_force"}))
+                             "grid_dense", "dynamic_octree", "brute_force"}))
       ->capture_default_str();
   app.add_option("--cell-size", cfg.cell_size, "grid engines: cell edge (0: automatic)")
       ->check(CLI::Range(0.0, 1e300))

@@ -316,6 +316,10 @@ template <class C>
 class GridBatchDiff : public DifferentialTest<C> {};
 template <class C>
 class GridBatchTinyCells : public DifferentialTest<C> {};
+template <class C>
+class GridDenseDiff : public DifferentialTest<C> {};
+template <class C>
+class GridDenseTinyCells : public DifferentialTest<C> {};
 
 using BruteForceShapes = AllShapes<MakeBruteForce>;
 using SapShapes = AllShapes<MakeSegmentedSap<32, 7>>;  // the default options
@@ -348,16 +352,20 @@ TYPED_TEST_SUITE(DynamicOctreeDiff, OctreeShapes);
 TYPED_TEST_SUITE(DynamicOctreeTinyNodes, OctreeTinyShapes);
 TYPED_TEST_SUITE(SegmentedSapTinyChunksPresorted, SapTinyPresortedShapes);
 
-// The grid over either cell: automatic cell size; and cells of size 3 (objects span many cells,
+// The grid over each cell type: automatic cell size; and cells of size 3 (objects span many cells,
 // migrate on most moves, and the wider ones are kept as large objects: at most 8 or 64 cells).
-using GridSegmentedShapes = AllShapes<MakeGrid<false, 0>>;
-using GridSegmentedTinyShapes = AllShapes<MakeGrid<false, 30, 64>>;
-using GridBatchShapes = AllShapes<MakeGrid<true, 0>>;
-using GridBatchTinyShapes = AllShapes<MakeGrid<true, 30, 8>>;
+using GridSegmentedShapes = AllShapes<MakeGrid<CellKind::kSegmented, 0>>;
+using GridSegmentedTinyShapes = AllShapes<MakeGrid<CellKind::kSegmented, 30, 64>>;
+using GridBatchShapes = AllShapes<MakeGrid<CellKind::kBatch, 0>>;
+using GridBatchTinyShapes = AllShapes<MakeGrid<CellKind::kBatch, 30, 8>>;
 TYPED_TEST_SUITE(GridSegmentedDiff, GridSegmentedShapes);
 TYPED_TEST_SUITE(GridSegmentedTinyCells, GridSegmentedTinyShapes);
 TYPED_TEST_SUITE(GridBatchDiff, GridBatchShapes);
 TYPED_TEST_SUITE(GridBatchTinyCells, GridBatchTinyShapes);
+using GridDenseShapes = AllShapes<MakeGrid<CellKind::kDense, 0>>;
+using GridDenseTinyShapes = AllShapes<MakeGrid<CellKind::kDense, 30, 8>>;
+TYPED_TEST_SUITE(GridDenseDiff, GridDenseShapes);
+TYPED_TEST_SUITE(GridDenseTinyCells, GridDenseTinyShapes);
 
 #define BP_DIFFERENTIAL_TESTS(Suite)                                                 \
   TYPED_TEST(Suite, RandomOperationsMatchOracle) {                                   \
@@ -382,6 +390,8 @@ BP_DIFFERENTIAL_TESTS(GridSegmentedDiff)
 BP_DIFFERENTIAL_TESTS(GridSegmentedTinyCells)
 BP_DIFFERENTIAL_TESTS(GridBatchDiff)
 BP_DIFFERENTIAL_TESTS(GridBatchTinyCells)
+BP_DIFFERENTIAL_TESTS(GridDenseDiff)
+BP_DIFFERENTIAL_TESTS(GridDenseTinyCells)
 BP_DIFFERENTIAL_TESTS(DynamicOctreeDiff)
 BP_DIFFERENTIAL_TESTS(DynamicOctreeTinyNodes)
 

@@ -31,7 +31,9 @@ class OptionsTest : public ::testing::Test {};
 using OptionEngines = ::testing::Types<
     EngineConfig<3, float, MakeBruteForce>, EngineConfig<3, float, MakeSegmentedSap<32, 7>>,
     EngineConfig<2, double, MakeBatchSap<7>>, EngineConfig<3, double, MakeDynamicOctree<>>,
-    EngineConfig<3, float, MakeGrid<false, 0>>, EngineConfig<2, int32_t, MakeGrid<true, 10, 4>>>;
+    EngineConfig<3, float, MakeGrid<CellKind::kSegmented, 0>>,
+    EngineConfig<2, int32_t, MakeGrid<CellKind::kBatch, 10, 4>>,
+    EngineConfig<3, double, MakeGrid<CellKind::kDense, 10, 4>>>;
 TYPED_TEST_SUITE(OptionsTest, OptionEngines);
 
 TYPED_TEST(OptionsTest, ReinsertWithOtherOptionsReportsOnlyRealChanges) {
@@ -164,6 +166,13 @@ struct MarginEngines {
            options.cell_size = 4;
            options.max_cells_per_object = 8;
            return std::make_unique<GridBatchSap<K, T>>(options, m);
+         }},
+        {"grid_dense_small_cells",
+         [](T m) -> std::unique_ptr<Broadphase<K, T>> {
+           GridDenseOptions options;
+           options.cell_size = 4;
+           options.max_cells_per_object = 8;
+           return std::make_unique<GridDense<K, T>>(options, m);
          }},
     };
   }

@@ -131,7 +131,7 @@ TEST(GoldenBatchSap, LargeRows) {
   for (const char* name : {"S4", "S1-100k", "S3", "S1-200k"}) ExpectGoldenBatch<3, float>(name);
 }
 
-// The grid over either cell: every S row of WORKLOADS.md (the rows above 10k objects with
+// The grid over each cell type: every S row of WORKLOADS.md (the rows above 10k objects with
 // BP_LONG_TESTS=1), the automatic cell size, and small cells (size 4: objects span up to 8 cells
 // and migrate often; size 1.5 with at most 4 cells per object: many objects are large).
 template <class Engine>
@@ -158,6 +158,19 @@ TEST(GoldenGrid, BatchCellsAuto) {
   ExpectGolden<2, float>(planar, *FindGolden("2-D"));
 }
 
+TEST(GoldenGrid, DenseCellsAuto) {
+  for (const char* name : {"S2a", "S2b", "S2c", "S1-10k"}) {
+    ExpectGoldenGrid<GridDense<3, float>>(name);
+  }
+  GridDenseOptions few;
+  few.objects_per_cell = 8;  // many small cells: migrations on most frames
+  ExpectGoldenGrid<GridDense<3, float>>("S2c", few);
+  GridDense<2, double> planar;
+  ExpectGolden<2, double>(planar, *FindGolden("2-D"));
+  GridDense<3, int32_t> integral;
+  ExpectGolden<3, int32_t>(integral, *FindGolden("S2b"));
+}
+
 TEST(GoldenGrid, Int32AndDouble) {
   GridSegmentedSap<3, int32_t> a;
   ExpectGolden<3, int32_t>(a, *FindGolden("S2c"));
@@ -173,6 +186,10 @@ TEST(GoldenGrid, SmallCellsAndLargeObjects) {
   tiny.cell_size = 1.5;
   tiny.max_cells_per_object = 4;
   ExpectGoldenGrid<GridBatchSap<3, float>>("S2b", tiny);
+  GridDenseOptions dense_tiny;
+  dense_tiny.cell_size = 1.5;
+  dense_tiny.max_cells_per_object = 4;
+  ExpectGoldenGrid<GridDense<3, float>>("S2a", dense_tiny);
 }
 
 TEST(GoldenGrid, LargeRows) {
@@ -180,6 +197,7 @@ TEST(GoldenGrid, LargeRows) {
   for (const char* name : {"S4", "S1-100k", "S3", "S1-200k"}) {
     ExpectGoldenGrid<GridSegmentedSap<3, float>>(name);
     ExpectGoldenGrid<GridBatchSap<3, float>>(name);
+    ExpectGoldenGrid<GridDense<3, float>>(name);
   }
 }
 

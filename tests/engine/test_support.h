@@ -147,9 +147,12 @@ struct MakeBatchSap {
   static std::string Name() { return "BatchSap_g" + std::to_string(kGlobalPercent); }
 };
 
-/// A grid over SegmentedSap (kBatch false) or BatchSap cells with cell size kCellTenths / 10
-/// (0: automatic) and at most kMaxCells cells per object before it counts as large.
-template <bool kBatch, int kCellTenths, uint32_t kMaxCells = 16>
+/// The cell type of a test grid.
+enum class CellKind { kSegmented, kBatch, kDense };
+
+/// A grid over SegmentedSap, BatchSap or dense cells with cell size kCellTenths / 10 (0:
+/// automatic) and at most kMaxCells cells per object before it counts as large.
+template <CellKind kCell, int kCellTenths, uint32_t kMaxCells = 16>
 struct MakeGrid {
   template <int K, class T>
   static std::unique_ptr<Broadphase<K, T>> Create() {
@@ -157,10 +160,14 @@ struct MakeGrid {
       options.cell_size = kCellTenths / 10.0;
       options.max_cells_per_object = kMaxCells;
     };
-    if constexpr (kBatch) {
+    if constexpr (kCell == CellKind::kBatch) {
       GridBatchSapOptions options;
       set(options);
       return std::make_unique<GridBatchSap<K, T>>(options);
+    } else if constexpr (kCell == CellKind::kDense) {
+      GridDenseOptions options;
+      set(options);
+      return std::make_unique<GridDense<K, T>>(options);
     } else {
       GridSegmentedSapOptions options;
       set(options);
@@ -168,8 +175,11 @@ struct MakeGrid {
     }
   }
   static std::string Name() {
-    return std::string(kBatch ? "GridBatchSap" : "GridSegmentedSap") + "_s" +
-           std::to_string(kCellTenths) + "_m" + std::to_string(kMaxCells);
+    const char* kind = kCell == CellKind::kBatch   ? "GridBatchSap"
+                       : kCell == CellKind::kDense ? "GridDense"
+                                                   : "GridSegmentedSap";
+    return std::string(kind) + "_s" + std::to_string(kCellTenths) + "_m" +
+           std::to_string(kMaxCells);
   }
 };
 

@@ -59,6 +59,7 @@
 #include "bp/batch_sap.h"
 #include "bp/box.h"
 #include "bp/broadphase.h"
+#include "bp/dense_cell.h"
 #include "bp/detail/assert.h"
 #include "bp/detail/cell_space.h"
 #include "bp/detail/flat_map.h"
@@ -196,6 +197,16 @@ class GridCore {
     bool changed = false;
     FlatSet<uint32_t> partners;  // live objects overlapping this one (global handles)
   };
+
+  // The cell's pairs as the grid sees them: a SAP core's tracker, or a dense cell itself.
+  template <class C>
+  static auto& CellPairs(C& core) {
+    if constexpr (requires { core.tracker(); }) {
+      return core.tracker();
+    } else {
+      return core;
+    }
+  }
 
   // --- cell coordinates ----------------------------------------------------------------------
 
@@ -521,7 +532,7 @@ class GridCore {
       cell.global.push_back(kNone);
     }
     cell.global[local] = h;
-    if (tracker_.filtering()) cell.core.tracker().SetOptions(local, tracker_.options(h));
+    if (tracker_.filtering()) CellPairs(cell.core).SetOptions(local, tracker_.options(h));
     return local;
   }
 
@@ -567,7 +578,7 @@ class GridCore {
     swaps_ += s.swaps;
     tests_ += s.overlap_tests;
     global_ = global_ || s.global_sort;
-    cell.core.tracker().DrainChanges(
+    CellPairs(cell.core).DrainChanges(
         [&](uint32_t a, uint32_t b, bool now) { Witness(cell.global[a], cell.global[b], now); });
     for (uint32_t local : cell.erases) {
       cell.global[local] = kNone;
@@ -875,9 +886,14 @@ using GridSegmentedSap = detail::KeyedEngine<detail::GridCore<detail::SegmentedS
 /// The grid over batch insertion and removal cells (many movers or many events per cell).
 template <int K, Coordinate T, class Key = uint64_t>
 using GridBatchSap = detail::KeyedEngine<detail::GridCore<detail::BatchSapCore<K, T>>, Key>;
-/// Options of GridSegmentedSap and GridBatchSap.
+/// The grid over dense cells (boxes in flat arrays, brute force within a cell; beyond the paper:
+/// fastest with small cells on scenes that spread their objects, see bp/dense_cell.h).
+template <int K, Coordinate T, class Key = uint64_t>
+using GridDense = detail::KeyedEngine<detail::GridCore<detail::DenseCellCore<K, T>>, Key>;
+/// Options of GridSegmentedSap, GridBatchSap and GridDense.
 using GridSegmentedSapOptions = GridOptions<SegmentedSapOptions>;
 using GridBatchSapOptions = GridOptions<BatchSapOptions>;
+using GridDenseOptions = GridOptions<DenseCellOptions>;
 
 }  // namespace bp
 

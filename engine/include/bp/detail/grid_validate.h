@@ -81,10 +81,10 @@ Status GridCore<Cell>::Validate() const {
     if (Status s = c.core.Validate(); !s.ok()) return fail("cell: " + s.message());
     for (uint32_t local = 0; local < c.global.size(); ++local) {
       uint32_t g = c.global[local];
-      if (g != kNone && !(c.core.tracker().options(local) == tracker_.options(g)))
+      if (g != kNone && !(CellPairs(c.core).options(local) == tracker_.options(g)))
         return fail("a cell's object options differ from the grid's");
     }
-    c.core.tracker().ForEachOverlap([&](uint32_t a, uint32_t b) {
+    CellPairs(c.core).ForEachOverlap([&](uint32_t a, uint32_t b) {
       ++count.FindOrInsert(HandlePair(c.global[a], c.global[b]), 0);
     });
   }

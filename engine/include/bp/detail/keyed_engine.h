@@ -24,7 +24,7 @@
 //
 // Thread safety: none (see bp/broadphase.h).
 // Invariants:
-//  1. handle_of_[key] exists iff the key is present (live at the last query and not erased since,
+//  1. index_ maps key iff the key is present (live at the last query and not erased since,
 //     or pending insert), or is live with a pending erase and was not reinserted.
 //  2. A handle is queued at most once between queries; handles are freed only inside Query,
 //     after the core has applied the batch, so a handle never means two keys within one batch.
@@ -42,13 +42,13 @@
 #include <span>
 #include <string>
 #include <type_traits>
-#include <unordered_map>
 #include <utility>
 #include <vector>
 
 #include "bp/box.h"
 #include "bp/broadphase.h"
 #include "bp/detail/assert.h"
+#include "bp/detail/key_index.h"
 #include "bp/detail/pair_tracker.h"
 #include "bp/object_options.h"
 
@@ -79,9 +79,9 @@ class KeyedEngine final : public Broadphase<Core::kDim, typename Core::Coord, Ke
 
   Status Insert(const Key& key, const BoxType& box, const ObjectOptions& options) override {
     if (Status s = ValidateBox(box); !s.ok()) return Annotate(s, "insert");
-    auto it = handle_of_.find(key);
-    if (it != handle_of_.end()) {
-      Slot& slot = slots_[it->second];
+    const uint32_t found = Find(key);
+    if (found != kNoHandle) {
+      Slot& slot = slots_[found];
       if (Present(slot)) return Status(StatusCode::kAlreadyExists, "insert: key already present");
       if (slot.options == options) {
         // Live at the last query and erased since: erase + insert is an update (invariant 3).
@@ -94,9 +94,9 @@ class KeyedEngine final : public Broadphase<Core::kDim, typename Core::Coord, Ke
       return Status(StatusCode::kResourceExhausted,
                     "insert: " + std::to_string(Core::kMaxHandles) + " objects are the limit");
     }
-    if (it != handle_of_.end()) {
+    if (found != kNoHandle) {
       // New options: the old handle stays erased and the key takes a fresh one (a rekey).
-      handle_of_.erase(it);
+      index_.Erase(key, found);
       rekeyed_ = true;
     }
     uint32_t h = AllocHandle();
@@ -106,18 +106,18 @@ class KeyedEngine final : public Broadphase<Core::kDim, typename Core::Coord, Ke
     slot.options = options;
     slot.live = false;
     slot.pending = Pending::kInsert;
-    handle_of_.emplace(key, h);
+    index_.Insert(key, h);
     Enqueue(h);
     return Status::Ok();
   }
 
   Status Update(const Key& key, const BoxType& box) override {
     if (Status s = ValidateBox(box); !s.ok()) return Annotate(s, "update");
-    auto it = handle_of_.find(key);
-    if (it == handle_of_.end() || !Present(slots_[it->second])) {
+    const uint32_t h = Find(key);
+    if (h == kNoHandle || !Present(slots_[h])) {
       return Status(StatusCode::kNotFound, "update: unknown key");
     }
-    Slot& slot = slots_[it->second];
+    Slot& slot = slots_[h];
     if (margin_ > T{}) {
       if (FatEnough(slot.box, box)) {
         ++fat_skips_;
@@ -128,16 +128,15 @@ class KeyedEngine final : public Broadphase<Core::kDim, typename Core::Coord, Ke
       slot.box = box;
     }
     if (slot.pending == Pending::kNone) slot.pending = Pending::kUpdate;
-    Enqueue(it->second);
+    Enqueue(h);
     return Status::Ok();
   }
 
   Status Erase(const Key& key) override {
-    auto it = handle_of_.find(key);
-    if (it == handle_of_.end() || !Present(slots_[it->second])) {
+    const uint32_t h = Find(key);
+    if (h == kNoHandle || !Present(slots_[h])) {
       return Status(StatusCode::kNotFound, "erase: unknown key");
     }
-    uint32_t h = it->second;
     Slot& slot = slots_[h];
     if (slot.live) {
       slot.pending = Pending::kErase;
@@ -145,7 +144,7 @@ class KeyedEngine final : public Broadphase<Core::kDim, typename Core::Coord, Ke
     } else {
       // Inserted and erased between two queries: nothing reaches the core.
       slot.pending = Pending::kNone;
-      handle_of_.erase(it);
+      index_.Erase(key, h);
     }
     return Status::Ok();
   }
@@ -188,8 +187,7 @@ class KeyedEngine final : public Broadphase<Core::kDim, typename Core::Coord, Ke
       Slot& slot = slots_[h];
       slot.queued = false;
       if (slot.pending == Pending::kErase) {
-        auto it = handle_of_.find(slot.key);
-        if (it != handle_of_.end() && it->second == h) handle_of_.erase(it);  // else rekeyed
+        index_.Erase(slot.key, h);  // false if the key was rekeyed to another handle
         slot.live = false;
       } else if (slot.pending != Pending::kNone) {
         slot.live = true;
@@ -255,20 +253,27 @@ class KeyedEngine final : public Broadphase<Core::kDim, typename Core::Coord, Ke
       }
       if (Present(slot)) {
         ++present;
-        auto it = handle_of_.find(slot.key);
-        if (it == handle_of_.end() || it->second != h) return fail("present key not mapped");
+        if (Find(slot.key) != h) return fail("present key not mapped");
       }
     }
     if (live != core_.live()) return fail("live counts disagree");
     if (queued != queue_.size()) return fail("queue differs from queued flags");
-    for (const auto& [key, h] : handle_of_) {
-      if (h >= slots_.size() || !(slots_[h].key == key)) return fail("key map points astray");
-      const Slot& slot = slots_[h];
-      if (!Present(slot) && !(slot.live && slot.pending == Pending::kErase)) {
-        return fail("key map names a dead slot");
+    const char* index_error = nullptr;
+    index_.ForEach([&](uint32_t h) {
+      if (index_error != nullptr) return;
+      if (h >= slots_.size() || !index_.HoldsUnder(slots_[h].key, h)) {
+        index_error = "key map points astray";
+        return;
       }
-    }
-    if (handle_of_.size() < present) return fail("key map smaller than the present slots");
+      const Slot& slot = slots_[h];
+      if (Find(slot.key) != h) {
+        index_error = "key map holds a key twice";
+      } else if (!Present(slot) && !(slot.live && slot.pending == Pending::kErase)) {
+        index_error = "key map names a dead slot";
+      }
+    });
+    if (index_error != nullptr) return fail(index_error);
+    if (index_.size() < present) return fail("key map smaller than the present slots");
     std::vector<uint8_t> free_seen(slots_.size(), 0);
     for (uint32_t h : free_) {
       if (h >= slots_.size() || free_seen[h]++) return fail("free list broken");
@@ -355,6 +360,11 @@ class KeyedEngine final : public Broadphase<Core::kDim, typename Core::Coord, Ke
     return Status(s.code(), std::string(what) + ": " + s.message());
   }
 
+  static constexpr uint32_t kNoHandle = KeyIndex<Key>::kNone;
+  uint32_t Find(const Key& key) const {
+    return index_.Find(key, [this](uint32_t h) -> const Key& { return slots_[h].key; });
+  }
+
   uint32_t AllocHandle() {
     if (!free_.empty()) {
       uint32_t h = free_.back();
@@ -378,7 +388,7 @@ class KeyedEngine final : public Broadphase<Core::kDim, typename Core::Coord, Ke
   size_t fat_skips_ = 0;  // updates absorbed by fat boxes since the last query
   size_t last_fat_skips_ = 0;
   std::vector<Slot> slots_;
-  std::unordered_map<Key, uint32_t> handle_of_;
+  KeyIndex<Key> index_;  // key -> handle (see invariant 1)
   std::vector<uint32_t> free_;
   std::vector<uint32_t> queue_;
   // Per-query buffers, kept to reuse their allocations.
