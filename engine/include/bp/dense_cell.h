@@ -1,7 +1,8 @@
 // bp::detail::DenseCellCore: a third cell type for bp::Grid, beyond the paper. A cell keeps its
-// objects' boxes in flat per-axis arrays (structure of arrays), both as they are now and as they
-// were at the last query, and finds the pair changes of a query by testing each changed object
-// against every object of the cell, then and now: a pair changes iff the two tests differ.
+// objects' boxes in flat arrays (per block of 16 slots, one row per axis bound: vectorisable) and
+// finds the pair changes of a query by testing each changed object against every object of the
+// cell, then and now: a pair changes iff the two tests differ. "Then" reads a scratch copy of the
+// rows with the changed slots' old boxes put back (per thread, so it stays in the cache).
 //
 // Why: with the grid's cells small (tens of objects), sorting buys nothing, while the SAP cells'
 // bookkeeping (sorted lists, positions, a pair set per cell, swaps that touch their neighbours'
@@ -20,8 +21,9 @@
 //
 // Thread safety: none; owned by one grid cell (the grid's pool applies each cell on one thread).
 // Invariants (checked by Validate, between queries):
-//  1. was_[h] == is_[h] for every slot, and the previous boxes equal the current ones.
-//  2. live_ is the number of slots with is_[h] set; no change is pending, no rank is set.
+//  1. size_ is a multiple of kBlock; rows_ holds 2 K size_ coordinates and is_ size_ flags (0/1).
+//  2. live_ is the number of slots with is_[h] set; every live slot's box is valid (lo <= hi);
+//     no change is pending.
 #pragma once
 
 #include <algorithm>
@@ -38,7 +40,7 @@
 
 namespace bp {
 
-/// Tuning of the dense cell (none yet: its cost is set by the grid's objects_per_cell).
+/// Tuning of the dense cell (none: its cost is set by the grid's objects_per_cell).
 struct DenseCellOptions {};
 
 namespace detail {
@@ -58,33 +60,26 @@ class DenseCellCore {
              std::span<const HandleBox<K, T>> inserts) {
     tests_ = 0;
     changed_.clear();
+    before_.clear();
     for (uint32_t h : erases) {
       BP_ASSERT(h < size_ && is_[h] != 0);
-      is_[h] = 0;
-      Mark(h);
+      Mark(h, true);
+      is_[h] = 0;  // the box stays: it is the old one
     }
     for (const auto& [h, box] : updates) {
       BP_ASSERT(h < size_ && is_[h] != 0);
-      Store(cur_, h, box);
-      Mark(h);
+      Mark(h, true);
+      Store(h, box);
     }
     for (const auto& [h, box] : inserts) {
       Reserve(h);
-      BP_ASSERT(is_[h] == 0 && was_[h] == 0);
+      BP_ASSERT(is_[h] == 0);
+      Mark(h, false);
       is_[h] = 1;
-      Store(cur_, h, box);
-      Mark(h);
-    }
-    for (uint32_t h : changed_) Scan(h);
-    for (uint32_t h : changed_) {
-      was_[h] = is_[h];
-      for (size_t a = 0; a < kAxes; ++a) {
-        prev_.lo[a][h] = cur_.lo[a][h];
-        prev_.hi[a][h] = cur_.hi[a][h];
-      }
-      rank_[h] = 0;
+      Store(h, box);
     }
     live_ = live_ + inserts.size() - erases.size();
+    if (!changed_.empty()) FindChanges();
     if (live_ == 0) Resize(0);  // an emptied cell is recycled by the grid with fresh handles
   }
 
@@ -115,7 +110,7 @@ class DenseCellCore {
     for (uint32_t a = 0; a < size_; ++a) {
       if (is_[a] == 0) continue;
       for (uint32_t b = a + 1; b < size_; ++b) {
-        if (is_[b] != 0 && Accepts(a, b) && OverlapAt(cur_, a, b)) f(a, b);
+        if (is_[b] != 0 && Accepts(a, b) && Overlaps(BoxAt(a), BoxAt(b))) f(a, b);
       }
     }
   }
@@ -135,110 +130,125 @@ class DenseCellCore {
   const Options& options() const { return options_; }
 
  private:
-  // Slots are tested in blocks of this many (the arrays are padded to a multiple of it; padding
+  // Slots are tested in blocks of this many; the arrays are padded to a multiple of it (padding
   // slots are dead, so they never pair).
   static constexpr uint32_t kBlock = 16;
+  static constexpr size_t kRows = 2 * kAxes;  // lo and hi of each axis
+  static constexpr size_t kBlockValues = kRows * kBlock;
 
-  struct Boxes {
-    std::vector<T> lo[kAxes];
-    std::vector<T> hi[kAxes];
-  };
   struct Change {
     uint32_t a, b;
     bool now;
   };
+  struct Before {
+    Box<K, T> box;  // the box at the last query
+    uint32_t live;  // live at the last query (0/1)
+  };
+  // Per-thread scratch of one Apply: the rows as they were ("then") and each slot's rank.
+  struct Scratch {
+    std::vector<T> then_rows;
+    std::vector<uint32_t> then_live, rank;
+  };
+  static Scratch& ThreadScratch() {
+    thread_local Scratch scratch;
+    return scratch;
+  }
 
+  static size_t At(uint32_t h, size_t row) {
+    return size_t{h / kBlock} * kBlockValues + row * kBlock + h % kBlock;
+  }
+  Box<K, T> BoxAt(uint32_t h) const {
+    Box<K, T> b;
+    for (size_t a = 0; a < kAxes; ++a) {
+      b.lo[a] = rows_[At(h, 2 * a)];
+      b.hi[a] = rows_[At(h, 2 * a + 1)];
+    }
+    return b;
+  }
+  void Store(uint32_t h, const Box<K, T>& box) {
+    for (size_t a = 0; a < kAxes; ++a) {
+      rows_[At(h, 2 * a)] = box.lo[a];
+      rows_[At(h, 2 * a + 1)] = box.hi[a];
+    }
+  }
   bool Accepts(uint32_t a, uint32_t b) const {
     return !filtering_ || bp::Accepts(options(a), options(b));
   }
-  static bool OverlapAt(const Boxes& s, uint32_t a, uint32_t b) {
-    for (size_t x = 0; x < kAxes; ++x) {
-      if (s.hi[x][a] < s.lo[x][b] || s.hi[x][b] < s.lo[x][a]) return false;
-    }
-    return true;
-  }
-  static void Store(Boxes& s, uint32_t h, const Box<K, T>& box) {
-    for (size_t a = 0; a < kAxes; ++a) {
-      s.lo[a][h] = box.lo[a];
-      s.hi[a][h] = box.hi[a];
-    }
-  }
   void Resize(size_t n) {
-    for (Boxes* s : {&cur_, &prev_}) {
-      for (size_t a = 0; a < kAxes; ++a) {
-        s->lo[a].resize(n);
-        s->hi[a].resize(n);
-      }
-    }
-    was_.resize(n, 0);
+    rows_.resize(n * kRows);
     is_.resize(n, 0);
-    rank_.resize(n, 0);
     size_ = static_cast<uint32_t>(n);
   }
   void Reserve(uint32_t h) {
     if (h >= size_) Resize((size_t{h} + kBlock) / kBlock * kBlock);
   }
-  void Mark(uint32_t h) {
-    if (rank_[h] != 0) return;
+  void Mark(uint32_t h, bool live) {
     changed_.push_back(h);
-    rank_[h] = static_cast<uint32_t>(changed_.size());
+    before_.push_back(Before{live ? BoxAt(h) : Box<K, T>{}, live ? 1u : 0u});
   }
 
-  // The pairs of changed slot c whose status differs between the last query and now. Blocks of
-  // kBlock slots are tested branch-free (vectorised: one row per axis bound, no aliasing), and
-  // only a block with a difference is looked at slot by slot.
-  void Scan(uint32_t c) {
-    const uint32_t rc = rank_[c];
-    const uint32_t wc = was_[c], ic = is_[c];
-    T plo[kAxes], phi[kAxes], nlo[kAxes], nhi[kAxes];
-    const T* __restrict rplo[kAxes];
-    const T* __restrict rphi[kAxes];
-    const T* __restrict rnlo[kAxes];
-    const T* __restrict rnhi[kAxes];
-    for (size_t a = 0; a < kAxes; ++a) {
-      rplo[a] = prev_.lo[a].data();
-      rphi[a] = prev_.hi[a].data();
-      rnlo[a] = cur_.lo[a].data();
-      rnhi[a] = cur_.hi[a].data();
-      plo[a] = rplo[a][c];
-      phi[a] = rphi[a][c];
-      nlo[a] = rnlo[a][c];
-      nhi[a] = rnhi[a][c];
+  // The pairs whose status differs between the last query and now, each reported once.
+  void FindChanges() {
+    Scratch& s = ThreadScratch();
+    s.then_rows.assign(rows_.begin(), rows_.end());
+    s.then_live.assign(is_.begin(), is_.end());
+    s.rank.assign(size_, 0);
+    for (uint32_t r = 0; r < changed_.size(); ++r) {
+      const uint32_t h = changed_[r];
+      BP_ASSERT(s.rank[h] == 0);  // one operation per slot and query
+      s.rank[h] = r + 1;
+      s.then_live[h] = before_[r].live;
+      if (before_[r].live == 0) continue;
+      for (size_t a = 0; a < kAxes; ++a) {
+        s.then_rows[At(h, 2 * a)] = before_[r].box.lo[a];
+        s.then_rows[At(h, 2 * a + 1)] = before_[r].box.hi[a];
+      }
     }
-    const uint32_t* __restrict was = was_.data();
-    const uint32_t* __restrict is = is_.data();
-    uint32_t diff[kBlock];
+    for (uint32_t r = 0; r < changed_.size(); ++r) Scan(s, changed_[r], r + 1);
+  }
+
+  // The pairs of changed slot c (rank rc) whose status differs between the last query and now.
+  // Blocks are tested branch-free (vectorised), and only a block with a difference is looked at
+  // slot by slot. A pair of two changed slots is decided by the one of lower rank.
+  void Scan(const Scratch& s, uint32_t c, uint32_t rc) {
+    const uint32_t wc = s.then_live[c], ic = is_[c];
+    T plo[kAxes], phi[kAxes], nlo[kAxes], nhi[kAxes];
+    for (size_t a = 0; a < kAxes; ++a) {
+      plo[a] = s.then_rows[At(c, 2 * a)];
+      phi[a] = s.then_rows[At(c, 2 * a + 1)];
+      nlo[a] = rows_[At(c, 2 * a)];
+      nhi[a] = rows_[At(c, 2 * a + 1)];
+    }
     tests_ += 2 * static_cast<size_t>(size_);
     for (uint32_t base = 0; base < size_; base += kBlock) {
-      constexpr uint32_t n = kBlock;  // size_ is a multiple of kBlock: no remainder loops
-      // Liveness first, then the box tests folded in axis by axis.
+      const T* __restrict then_block = s.then_rows.data() + size_t{base / kBlock} * kBlockValues;
+      const T* __restrict now_block = rows_.data() + size_t{base / kBlock} * kBlockValues;
+      const uint32_t* __restrict was = s.then_live.data() + base;
+      const uint32_t* __restrict is = is_.data() + base;
       uint32_t then_mask[kBlock], now_mask[kBlock];
-      for (uint32_t i = 0; i < n; ++i) {
-        then_mask[i] = wc & was[base + i];
-        now_mask[i] = ic & is[base + i];
+      for (uint32_t i = 0; i < kBlock; ++i) {
+        then_mask[i] = wc & was[i];
+        now_mask[i] = ic & is[i];
       }
       for (size_t a = 0; a < kAxes; ++a) {
-        const T* __restrict pl = rplo[a] + base;
-        const T* __restrict ph = rphi[a] + base;
-        const T* __restrict nl = rnlo[a] + base;
-        const T* __restrict nh = rnhi[a] + base;
+        const T* __restrict pl = then_block + 2 * a * kBlock;
+        const T* __restrict ph = pl + kBlock;
+        const T* __restrict nl = now_block + 2 * a * kBlock;
+        const T* __restrict nh = nl + kBlock;
         const T cpl = plo[a], cph = phi[a], cnl = nlo[a], cnh = nhi[a];
-        for (uint32_t i = 0; i < n; ++i) {
+        for (uint32_t i = 0; i < kBlock; ++i) {
           then_mask[i] &= static_cast<uint32_t>(pl[i] <= cph) & static_cast<uint32_t>(cpl <= ph[i]);
           now_mask[i] &= static_cast<uint32_t>(nl[i] <= cnh) & static_cast<uint32_t>(cnl <= nh[i]);
         }
       }
       uint32_t any = 0;
-      for (uint32_t i = 0; i < n; ++i) {
-        diff[i] = then_mask[i] ^ now_mask[i];
-        any |= diff[i];
-      }
+      for (uint32_t i = 0; i < kBlock; ++i) any |= then_mask[i] ^ now_mask[i];
       if (any == 0) continue;
-      for (uint32_t i = 0; i < n; ++i) {
-        if (diff[i] == 0) continue;
+      for (uint32_t i = 0; i < kBlock; ++i) {
+        if (then_mask[i] == now_mask[i]) continue;
         const uint32_t j = base + i;
         if (j == c) continue;
-        if (rank_[j] != 0 && rank_[j] < rc) continue;  // decided from j's side
+        if (s.rank[j] != 0 && s.rank[j] < rc) continue;  // decided from j's side
         if (!Accepts(c, j)) continue;
         changes_.push_back(Change{c, j, now_mask[i] != 0});
       }
@@ -246,14 +256,15 @@ class DenseCellCore {
   }
 
   Options options_;
-  Boxes cur_, prev_;
-  std::vector<uint32_t> was_, is_;  // live at the last query / now (0 or 1)
-  std::vector<uint32_t> rank_;      // 1 + index in changed_ during Apply, else 0
-  uint32_t size_ = 0;               // slots (the grid's local handles)
+  std::vector<T> rows_;       // per block: lo[0], hi[0], lo[1], ... (kBlock values each)
+  std::vector<uint32_t> is_;  // live now (0 or 1)
+  uint32_t size_ = 0;         // slots (the grid's local handles), a multiple of kBlock
   size_t live_ = 0;
   std::vector<ObjectOptions> options_of_;  // by slot; empty while filtering_ is false
   bool filtering_ = false;
+  // The query's changed slots, in order, with their state at the last query.
   std::vector<uint32_t> changed_;
+  std::vector<Before> before_;
   std::vector<Change> changes_;
   size_t tests_ = 0;
 };
@@ -264,17 +275,17 @@ Status DenseCellCore<K, T>::Validate() const {
     return Status(StatusCode::kInternal, "dense cell: " + what);
   };
   if (!changes_.empty()) return fail("changes left after a query");
+  if (size_ % kBlock != 0 || rows_.size() != size_t{size_} * kRows || is_.size() != size_) {
+    return fail("arrays of the wrong size");
+  }
   size_t live = 0;
   for (uint32_t h = 0; h < size_; ++h) {
-    if (was_[h] != is_[h] || rank_[h] != 0) return fail("slot " + std::to_string(h) + " pending");
     if (is_[h] > 1) return fail("slot " + std::to_string(h) + ": bad flag");
     live += is_[h];
     if (is_[h] == 0) continue;
+    Box<K, T> b = BoxAt(h);
     for (size_t a = 0; a < kAxes; ++a) {
-      if (!(prev_.lo[a][h] == cur_.lo[a][h]) || !(prev_.hi[a][h] == cur_.hi[a][h])) {
-        return fail("slot " + std::to_string(h) + ": previous box differs");
-      }
-      if (cur_.hi[a][h] < cur_.lo[a][h]) return fail("slot " + std::to_string(h) + ": bad box");
+      if (b.hi[a] < b.lo[a]) return fail("slot " + std::to_string(h) + ": bad box");
     }
   }
   if (live != live_) return fail("live count differs");

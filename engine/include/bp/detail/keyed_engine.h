@@ -154,7 +154,9 @@ class KeyedEngine final : public Broadphase<Core::kDim, typename Core::Coord, Ke
     updates_.clear();
     inserts_.clear();
     PairTracker& tracker = core_.tracker();
-    for (uint32_t h : queue_) {
+    for (size_t i = 0; i < queue_.size(); ++i) {
+      if (i + 8 < queue_.size()) __builtin_prefetch(&slots_[queue_[i + 8]]);
+      const uint32_t h = queue_[i];
       Slot& slot = slots_[h];
       switch (slot.pending) {
         case Pending::kErase:
