@@ -48,7 +48,7 @@ struct Config {
   uint32_t presorted_min = bp::SegmentedSapOptions().presorted_min;
   double global_fraction = -1;  // < 0: the engine's default
   double cell_size = 0;         // grid engines: 0 = automatic
-  double objects_per_cell = bp::GridSegmentedSapOptions().objects_per_cell;
+  double objects_per_cell = 0;  // 0: the cell type's default (bp::kDefaultObjectsPerCell)
   uint32_t max_cells = bp::GridSegmentedSapOptions().max_cells_per_object;
   unsigned threads = 1;    // grid engines
   uint32_t big_boxes = 0;  // static boxes of big_width cube widths added to the scene
@@ -123,11 +123,18 @@ template <class GridOptions>
 GridOptions MakeGridOptions(const Config& cfg, const decltype(GridOptions::cell)& cell) {
   GridOptions options;
   options.cell_size = cfg.cell_size;
-  options.objects_per_cell = cfg.objects_per_cell;
+  if (cfg.objects_per_cell > 0) options.objects_per_cell = cfg.objects_per_cell;
   options.max_cells_per_object = cfg.max_cells;
   options.threads = cfg.threads;
   options.cell = cell;
   return options;
+}
+
+// The objects per cell the grid aims at: the option, or the cell type's default.
+double ObjectsPerCell(const Config& cfg) {
+  if (cfg.objects_per_cell > 0) return cfg.objects_per_cell;
+  return cfg.engine == "grid_dense" ? bp::kDefaultObjectsPerCell<bp::DenseCellOptions>
+                                    : bp::kDefaultObjectsPerCell<bp::SegmentedSapOptions>;
 }
 
 bp::DynamicOctreeOptions OctreeOptions(const Config& cfg) {
@@ -304,7 +311,7 @@ void PrintJson(const std::string& scenario, const SceneParams& p, int frames, co
     << ",\"churn\":" << p.churn << ",\"frames\":" << frames << ",\"repeats\":" << cfg.repeats;
   if (IsGrid(cfg)) {
     o << ",\"cell_size\":" << r.last.cell_size << ",\"auto_size\":" << (cfg.cell_size == 0)
-      << ",\"objects_per_cell\":" << cfg.objects_per_cell << ",\"max_cells\":" << cfg.max_cells
+      << ",\"objects_per_cell\":" << ObjectsPerCell(cfg) << ",\"max_cells\":" << cfg.max_cells
       << ",\"threads\":" << cfg.threads << ",\"cells\":" << r.last.cells
       << ",\"large_objects\":" << r.last.large_objects;
   }
@@ -497,8 +504,9 @@ int main(int argc, char** argv) {
       ->check(CLI::Range(0.0, 1e300))
       ->capture_default_str();
   app.add_option("--objects-per-cell", cfg.objects_per_cell,
-                 "grid engines: the automatic cell size aims at this many objects per cell")
-      ->check(CLI::Range(1.0, 1e9))
+                 "grid engines: the automatic cell size aims at this many objects per cell (0: "
+                 "the cell type's default, 300 for SAP cells, 32 for dense cells)")
+      ->check(CLI::Range(0.0, 1e9))
       ->capture_default_str();
   app.add_option("--big-boxes", cfg.big_boxes, "add this many static boxes of --big-width widths")
       ->capture_default_str();

@@ -32,9 +32,9 @@ enum class FrameBoundary {
 enum class CoordinateType { kFloat, kDouble, kInt32 };
 
 /// Engine algorithm names the daemon can build (the factory lives elsewhere).
-inline constexpr std::array<std::string_view, 6> kAlgorithms{
-    "brute_force",    "segmented_sap",      "batch_sap",
-    "dynamic_octree", "grid_segmented_sap", "grid_batch_sap"};
+inline constexpr std::array<std::string_view, 7> kAlgorithms{
+    "brute_force",        "segmented_sap",  "batch_sap", "dynamic_octree",
+    "grid_segmented_sap", "grid_batch_sap", "grid_dense"};
 
 /// Valid values of logging.level, most verbose first.
 inline constexpr std::array<std::string_view, 7> kLogLevels{"trace", "debug",    "info", "warn",

@@ -287,13 +287,18 @@ Status Make(const EngineConfig& config, uint64_t max_objects, std::unique_ptr<En
     options.cell_size = config.cell_size.value_or(0.0);
     options.threads = static_cast<unsigned>(config.threads);
     engine = std::make_unique<GridBatchSap<K, T, uint64_t>>(options, margin);
+  } else if (config.algorithm == "grid_dense") {
+    GridDenseOptions options;
+    options.cell_size = config.cell_size.value_or(0.0);
+    options.threads = static_cast<unsigned>(config.threads);
+    engine = std::make_unique<GridDense<K, T, uint64_t>>(options, margin);
   } else if (config.algorithm == "dynamic_octree") {
     engine = std::make_unique<DynamicOctree<K, T, uint64_t>>(DynamicOctreeOptions(), margin);
   } else {
     return Status(StatusCode::kInvalidArgument,
                   "unknown engine algorithm '" + config.algorithm +
                       "' (known: brute_force, segmented_sap, batch_sap, dynamic_octree, "
-                      "grid_segmented_sap, grid_batch_sap)");
+                      "grid_segmented_sap, grid_batch_sap, grid_dense)");
   }
   *out = std::make_unique<TypedHost<K, T>>(std::move(engine), max_objects);
   return Status::Ok();

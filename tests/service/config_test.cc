@@ -325,7 +325,7 @@ const RuleCase kRuleCases[] = {
     // Names from a fixed list.
     {"UnknownAlgorithm", "engine:\n  algorithm: sap\n",
      "cfg.yaml:2:14: engine.algorithm: unknown algorithm 'sap' (valid: brute_force, "
-     "segmented_sap, batch_sap, dynamic_octree, grid_segmented_sap, grid_batch_sap)"},
+     "segmented_sap, batch_sap, dynamic_octree, grid_segmented_sap, grid_batch_sap, grid_dense)"},
     {"UnknownCoordinate", "engine:\n  coordinate: int64\n",
      "cfg.yaml:2:15: engine.coordinate: unknown coordinate type 'int64' (valid: float, double, "
      "int32)"},

@@ -125,6 +125,7 @@ TEST(Daemon, DynamicOctreeSceneMatchesOracleFrameByFrame3D) { RunScene<3>("dynam
 TEST(Daemon, SceneMatchesOracleWithBruteForceEngine) { RunScene<3>("brute_force"); }
 TEST(Daemon, GridSceneMatchesOracleFrameByFrame3D) { RunScene<3>("grid_segmented_sap"); }
 TEST(Daemon, GridBatchSceneMatchesOracleFrameByFrame2D) { RunScene<2>("grid_batch_sap"); }
+TEST(Daemon, GridDenseSceneMatchesOracleFrameByFrame3D) { RunScene<3>("grid_dense"); }
 
 wire::UpdateBatch InsertBatch(std::initializer_list<std::pair<uint64_t, Box<3, float>>> boxes) {
   wire::UpdateBatch batch;

@@ -180,7 +180,7 @@ void RandomBatches(const char* algorithm, CoordinateType coordinate, uint64_t se
 TEST(EngineHost, RandomBatchesMatchTheOracle) {
   for (uint64_t seed = 1; seed <= 3; ++seed) {
     for (const char* algorithm : {"segmented_sap", "batch_sap", "dynamic_octree", "brute_force",
-                                  "grid_segmented_sap", "grid_batch_sap"}) {
+                                  "grid_segmented_sap", "grid_batch_sap", "grid_dense"}) {
       for (CoordinateType c :
            {CoordinateType::kFloat, CoordinateType::kDouble, CoordinateType::kInt32}) {
         RandomBatches<3>(algorithm, c, seed);
@@ -358,7 +358,7 @@ TEST(EngineHost, FiltersMatchABruteForceFilteredOracle) {
 // reinsert with the same options or other ones (the engine takes a fresh handle and reports only
 // real changes), erase-reinsert-erase, and static objects, over two engines.
 TEST(EngineHost, OptionsStayExactAcrossSameFrameTransitions) {
-  for (const char* algorithm : {"segmented_sap", "grid_segmented_sap"}) {
+  for (const char* algorithm : {"segmented_sap", "grid_segmented_sap", "grid_dense"}) {
     SCOPED_TRACE(algorithm);
     std::mt19937_64 rng(17);
     auto host = MakeHost(algorithm, 2, CoordinateType::kDouble);

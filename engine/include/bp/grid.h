@@ -72,13 +72,20 @@
 
 namespace bp {
 
+/// The objects per cell the automatic size aims at, by cell type: about 300 for SAP cells (the
+/// paper's finding on uniform scenes), 32 for dense cells (measured on S1-200k, S3 and S4: README).
+template <class CellOptions>
+inline constexpr double kDefaultObjectsPerCell = 300;
+template <>
+inline constexpr double kDefaultObjectsPerCell<DenseCellOptions> = 32;
+
 /// Tuning of the grid; CellOptions are the options of its cell engine.
 template <class CellOptions>
 struct GridOptions {
   /// Edge of a cell on every axis; 0 chooses it from the objects and adapts it as they grow.
   double cell_size = 0;
-  /// The automatic size aims at this many objects per cell (paper: about 300, uniform scenes).
-  double objects_per_cell = 300;
+  /// The automatic cell size aims at this many objects per cell (kDefaultObjectsPerCell).
+  double objects_per_cell = kDefaultObjectsPerCell<CellOptions>;
   /// An object whose box would cover more cells than this is kept in the large set instead.
   uint32_t max_cells_per_object = 16;
   /// Threads that apply the touched cells of a query (the caller's included). Events do not
@@ -583,10 +590,21 @@ class GridCore {
     if (pool_ != nullptr) {
       pool_->ParallelFor(touched_.size(), [this](size_t i) { ApplyCell(touched_[i]); });
     } else {
-      for (uint32_t idx : touched_) ApplyCell(idx);
+      for (size_t i = 0; i < touched_.size(); ++i) {
+        if (i + 2 < touched_.size()) Prefetch(cells_[touched_[i + 2]].get());
+        if (i + 1 < touched_.size()) PrefetchCell(*cells_[touched_[i + 1]]);
+        ApplyCell(touched_[i]);
+      }
     }
     for (uint32_t idx : touched_) FinishCell(idx);
     touched_.clear();
+  }
+
+  // Starts loading what applying the cell reads first: its buffered updates and, for a cell
+  // type that says where its hot arrays are, those.
+  void PrefetchCell(const GridCell& cell) {
+    if (!cell.updates.empty()) Prefetch(cell.updates.data());
+    if constexpr (requires { cell.core.Prefetch(); }) cell.core.Prefetch();
   }
 
   void ApplyCell(uint32_t idx) {
