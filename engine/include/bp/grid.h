@@ -129,22 +129,27 @@ class GridCore {
     for (uint32_t h : erases) EraseObject(h);
     // Updates come in handle order, not memory order: the loads of each object's records miss
     // the cache, so they are prefetched a few updates ahead, in the order they depend on each
-    // other (object and box, then its first cell reference, then that cell).
-    for (size_t i = 0; i < updates.size(); ++i) {
-      if (i + 12 < updates.size()) {
-        const uint32_t h = updates[i + 12].handle;
+    // other (object and box, then its first cell reference, then that cell, then the end of
+    // that cell's update buffer, where the update will be written).
+    const size_t n = updates.size();
+    for (size_t i = 0; i < n; ++i) {
+      if (i + 16 < n) {
+        const uint32_t h = updates[i + 16].handle;
         Prefetch(&objects_[h]);
-        Prefetch(&boxes_[h]);
       }
-      if (i + 6 < updates.size()) {
-        const Object& o = objects_[updates[i + 6].handle];
+      if (i + 8 < n) {
+        const Object& o = objects_[updates[i + 8].handle];
         if (o.nrefs != 0) Prefetch(&refs_[o.refs]);
       }
-      if (i + 2 < updates.size()) {
+      if (i + 4 < n) {
+        const Object& o = objects_[updates[i + 4].handle];
+        if (o.nrefs != 0) Prefetch(cells_[refs_[o.refs].cell].get());
+      }
+      if (i + 2 < n) {
         const Object& o = objects_[updates[i + 2].handle];
         if (o.nrefs != 0) {
-          const GridCell& c = *cells_[refs_[o.refs].cell];
-          Prefetch(&c);
+          const auto& buffer = cells_[refs_[o.refs].cell]->updates;
+          Prefetch(buffer.data() + buffer.size());
         }
       }
       UpdateObject(updates[i].handle, updates[i].box);
@@ -199,13 +204,17 @@ class GridCore {
     uint32_t local;
   };
   enum class State : uint8_t { kDead, kLive };
-  struct Object {
+  // One record per global handle, box included; line-aligned when it fits a line (3-D float:
+  // 61 bytes), so routing an update reads one line.
+  struct ObjectFields {
+    BoxType box;
     CellCoord lo{}, hi{};    // cell range
     uint32_t refs = 0;       // first CellRef in refs_ (small objects)
     uint32_t nrefs = 0;      // cells covered (0 for large objects)
     uint32_t large = kNone;  // index in large_ (large objects)
     State state = State::kDead;
   };
+  struct alignas(sizeof(ObjectFields) <= 64 ? 64 : alignof(ObjectFields)) Object : ObjectFields {};
   struct GridCell {
     explicit GridCell(const typename Cell::Options& o) : core(o) {}
     Cell core;
@@ -252,8 +261,8 @@ class GridCore {
   }
   void RangeOf(const BoxType& box, CellCoord* out_lo, CellCoord* out_hi) const {
     for (size_t a = 0; a < kAxes; ++a) {
-      (*out_lo)[a] = CellOf(box.lo[a]);
-      (*out_hi)[a] = CellOf(box.hi[a]);
+      (*out_lo)[a] = static_cast<typename Space::Scalar>(CellOf(box.lo[a]));
+      (*out_hi)[a] = static_cast<typename Space::Scalar>(CellOf(box.hi[a]));
     }
   }
   // Cells in a range, saturated just above the large-object threshold.
@@ -261,7 +270,7 @@ class GridCore {
     const uint64_t cap = uint64_t{options_.max_cells_per_object} + 1;
     uint64_t n = 1;
     for (size_t a = 0; a < kAxes; ++a) {
-      uint64_t w = static_cast<uint64_t>(hi[a] - lo[a]) + 1;
+      uint64_t w = static_cast<uint64_t>(int64_t{hi[a]} - lo[a]) + 1;
       if (w >= cap || n * w >= cap) return cap;
       n *= w;
     }
@@ -274,7 +283,7 @@ class GridCore {
     uint64_t n = 1;
     bool small = true;
     for (size_t a = 0; a < kAxes && small; ++a) {
-      uint64_t w = static_cast<uint64_t>(hi[a] - lo[a]) + 1;
+      uint64_t w = static_cast<uint64_t>(int64_t{hi[a]} - lo[a]) + 1;
       small = w <= cell_of_.size() && n * w <= cell_of_.size();
       n *= w;
     }
@@ -345,7 +354,7 @@ class GridCore {
     sized_for_ = live_;
     double ideal = IdealCellSize(live_, [&](auto&& f) {
       for (uint32_t h = 0; h < objects_.size(); ++h) {
-        if (objects_[h].state == State::kLive) f(boxes_[h]);
+        if (objects_[h].state == State::kLive) f(objects_[h].box);
       }
     });
     if (ideal > 0.5 * cell_size_ && ideal < 2 * cell_size_) return;
@@ -357,7 +366,6 @@ class GridCore {
   void Reserve(uint32_t h) {
     if (h >= objects_.size()) {
       objects_.resize(h + 1);
-      boxes_.resize(h + 1);
       stamp_.resize(h + 1, 0);
       mark_.resize(h + 1, 0);
     }
@@ -368,7 +376,7 @@ class GridCore {
     Object& o = objects_[h];
     BP_ASSERT(o.state == State::kDead);
     o.state = State::kLive;
-    boxes_[h] = box;
+    objects_[h].box = box;
     CellCoord lo, hi;
     RangeOf(box, &lo, &hi);
     if (CellCount(lo, hi) > options_.max_cells_per_object) {
@@ -394,7 +402,7 @@ class GridCore {
     if (large_count_ != 0) {
       BeginLargeCandidates();
       AddLargeCandidates(h);
-      TestLargeCandidates(h, &boxes_[h]);  // dead: every listed pair goes
+      TestLargeCandidates(h, &objects_[h].box);  // dead: every listed pair goes
     }
     LeaveCells(h);
   }
@@ -402,8 +410,8 @@ class GridCore {
   void UpdateObject(uint32_t h, const BoxType& box) {
     Object& o = objects_[h];
     BP_ASSERT(o.state == State::kLive);
-    const BoxType before = boxes_[h];
-    boxes_[h] = box;
+    const BoxType before = objects_[h].box;
+    objects_[h].box = box;
     CellCoord lo, hi;
     RangeOf(box, &lo, &hi);
     bool large_now = CellCount(lo, hi) > options_.max_cells_per_object;
@@ -453,7 +461,7 @@ class GridCore {
   // A small object's new cell range differs: update it in the cells it keeps, insert it into
   // the new ones, erase it from the ones it left.
   void Migrate(uint32_t h, const CellCoord& lo, const CellCoord& hi) {
-    const BoxType& box = boxes_[h];
+    const BoxType& box = objects_[h].box;
     const uint32_t n = static_cast<uint32_t>(CellCount(lo, hi));
     const uint32_t refs = AllocRefs(n);
     Object& o = objects_[h];
@@ -497,7 +505,7 @@ class GridCore {
       uint32_t idx = CellAt(c);
       GridCell& cell = *cells_[idx];
       uint32_t local = AllocLocal(cell, h);
-      cell.inserts.push_back({local, boxes_[h]});
+      cell.inserts.push_back({local, objects_[h].box});
       ++cell.members;
       Touch(idx);
       refs_[refs + i++] = CellRef{idx, local};
@@ -763,9 +771,9 @@ class GridCore {
     for (uint32_t l : candidates_) {
       Large& lg = large_[l];
       if (!tracker_.Accepts(h, lg.handle)) continue;  // never a partner
-      const BoxType& lbox = boxes_[lg.handle];
+      const BoxType& lbox = objects_[lg.handle].box;
       ++tests_;
-      bool now = alive && Overlaps(boxes_[h], lbox);
+      bool now = alive && Overlaps(objects_[h].box, lbox);
       if (!lg.changed) {
         bool had = before != nullptr && Overlaps(*before, lbox);
         if (had == now) continue;
@@ -778,7 +786,7 @@ class GridCore {
   // ones in the cells its range covers and the other large ones.
   void Rescan(uint32_t l) {
     const uint32_t h = large_[l].handle;
-    const BoxType& box = boxes_[h];
+    const BoxType& box = objects_[h].box;
     const Object& o = objects_[h];
     NextEpoch(&epoch_, &stamp_, &mark_);
     found_.clear();
@@ -790,7 +798,7 @@ class GridCore {
         if (x.state != State::kLive || x.large != kNone) continue;  // left, or now large
         if (!tracker_.Accepts(g, h)) continue;
         ++tests_;
-        if (Overlaps(boxes_[g], box)) {
+        if (Overlaps(objects_[g].box, box)) {
           mark_[g] = epoch_;
           found_.push_back(g);
         }
@@ -800,7 +808,7 @@ class GridCore {
       uint32_t g = other.handle;
       if (g == kNone || g == h || !tracker_.Accepts(g, h)) continue;
       ++tests_;
-      if (Overlaps(boxes_[g], box)) {
+      if (Overlaps(objects_[g].box, box)) {
         mark_[g] = epoch_;
         found_.push_back(g);
       }
@@ -847,7 +855,7 @@ class GridCore {
       o.nrefs = 0;
       if (o.state != State::kLive) continue;
       CellCoord lo, hi;
-      RangeOf(boxes_[h], &lo, &hi);
+      RangeOf(objects_[h].box, &lo, &hi);
       if (CellCount(lo, hi) > options_.max_cells_per_object) {
         InsertLarge(h, lo, hi);
       } else {
@@ -891,7 +899,6 @@ class GridCore {
   double inv_size_ = 0;  // 0 until the size is chosen
   size_t sized_for_ = 0;
   size_t live_ = 0;
-  std::vector<BoxType> boxes_;  // by global handle
   std::vector<Object> objects_;
   std::vector<CellRef> refs_;
   std::vector<std::vector<uint32_t>> free_refs_;

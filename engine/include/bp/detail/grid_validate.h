@@ -29,7 +29,7 @@ Status GridCore<Cell>::Validate() const {
     if (o.state != State::kLive) continue;
     live.push_back(h);
     CellCoord lo, hi;
-    RangeOf(boxes_[h], &lo, &hi);
+    RangeOf(objects_[h].box, &lo, &hi);
     if (lo != o.lo || hi != o.hi) return fail("object " + std::to_string(h) + ": stale cell range");
     bool is_large = CellCount(lo, hi) > options_.max_cells_per_object;
     if (is_large != (o.large != kNone)) return fail("object " + std::to_string(h) + ": wrong set");
@@ -97,14 +97,14 @@ Status GridCore<Cell>::Validate() const {
     }
     size_t overlapping = 0;
     for (uint32_t g : live) {
-      overlapping += g != lg.handle && Overlaps(boxes_[g], boxes_[lg.handle]) &&
+      overlapping += g != lg.handle && Overlaps(objects_[g].box, objects_[lg.handle].box) &&
                      tracker_.Accepts(g, lg.handle);
     }
     if (overlapping != lg.partners.size()) return fail("large partners differ");
     bool ok = true;
     lg.partners.ForEach([&](uint32_t x) {
-      ok = ok && objects_[x].state == State::kLive && Overlaps(boxes_[x], boxes_[lg.handle]) &&
-           tracker_.Accepts(x, lg.handle);
+      ok = ok && objects_[x].state == State::kLive &&
+           Overlaps(objects_[x].box, objects_[lg.handle].box) && tracker_.Accepts(x, lg.handle);
       if (objects_[x].large != kNone) {
         ok = ok && large_[objects_[x].large].partners.Contains(lg.handle);
         if (x < lg.handle) return;  // a large pair counts once
@@ -124,7 +124,9 @@ Status GridCore<Cell>::Validate() const {
   if (!ok || count.size() != tracker_.overlaps() || multi != extra_.size()) {
     return fail("witness counts differ from the cells");
   }
-  return CheckOverlapSet(boxes_, std::move(live), tracker_, kName);
+  std::vector<BoxType> boxes(objects_.size());
+  for (uint32_t h = 0; h < objects_.size(); ++h) boxes[h] = objects_[h].box;
+  return CheckOverlapSet(boxes, std::move(live), tracker_, kName);
 }
 
 }  // namespace bp::detail

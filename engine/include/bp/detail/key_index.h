@@ -12,8 +12,8 @@
 // Invariants:
 //  1. Capacity is 0 or a power of two, at most 2^32, and size <= capacity / 2 after any insert;
 //     a table above kMinCapacity shrinks when it falls under capacity / 8.
-//  2. An entry's tag is the top 32 bits of Mix(hash(key of its handle)); its home slot is the
-//     top log2(capacity) bits of the tag, and it lies in the probe run that starts there.
+//  2. An entry's tag is Tag(key of its handle); it lies in the probe run that starts at
+//     Home(tag).
 //  3. No key is held twice.
 #pragma once
 
@@ -110,16 +110,26 @@ class KeyIndex {
     uint32_t tag = 0;
   };
 
+  // Keys that differ only in their low kRunBits bits of hash share a run of 2^kRunBits slots,
+  // in the order of those bits: std::hash of an integer is the integer itself, so consecutive
+  // ids (the usual client numbering) land in consecutive entries, and a frame that updates
+  // them in id order reads the table almost sequentially. The run itself is placed by a mix64
+  // finaliser of the remaining bits, so strided or clustered ids still spread.
+  static constexpr int kRunBits = 4;
   static uint32_t Tag(const Key& key) {
-    uint64_t z = static_cast<uint64_t>(std::hash<Key>{}(key));
-    // mix64 finaliser: std::hash of an integer is the integer itself.
+    const uint64_t h = static_cast<uint64_t>(std::hash<Key>{}(key));
+    uint64_t z = h >> kRunBits;
     z = (z ^ (z >> 30)) * 0xBF58476D1CE4E5B9ULL;
     z = (z ^ (z >> 27)) * 0x94D049BB133111EBULL;
     z ^= z >> 31;
-    return static_cast<uint32_t>(z >> 32);
+    const uint32_t run = static_cast<uint32_t>(z >> (64 - (32 - kRunBits)));
+    return run << kRunBits | static_cast<uint32_t>(h & ((1u << kRunBits) - 1));
   }
+  // The home slot: the top bits of the run's part of the tag, then the key's low bits.
   size_t Home(uint32_t tag) const {
-    return bits_ == 0 ? 0 : static_cast<size_t>(tag >> (32 - bits_));
+    if (bits_ <= kRunBits) return static_cast<size_t>(tag) & mask_;
+    const uint32_t run = (tag >> kRunBits) >> (32 - bits_);
+    return static_cast<size_t>(run << kRunBits | (tag & ((1u << kRunBits) - 1)));
   }
 
   void Rehash(size_t capacity) {

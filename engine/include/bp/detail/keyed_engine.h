@@ -31,7 +31,9 @@
 //  3. erase + insert of one live key with equal options between queries becomes an update of
 //     the same handle (unless the key was rekeyed in between: then it is a fresh handle again,
 //     and the cancellation keeps the events exact).
-//  5. A live slot's options are the ones its core's tracker holds.
+//  5. A live handle's options are held by the core's tracker alone (set at the query that
+//     inserts it); a pending insert's options wait in insert_options_ (unless they are the
+//     defaults and no object has had others).
 //  4. With a margin, a slot's box (what the core holds) contains the client's last box.
 #pragma once
 
@@ -83,7 +85,7 @@ class KeyedEngine final : public Broadphase<Core::kDim, typename Core::Coord, Ke
     if (found != kNoHandle) {
       Slot& slot = slots_[found];
       if (Present(slot)) return Status(StatusCode::kAlreadyExists, "insert: key already present");
-      if (slot.options == options) {
+      if (core_.tracker().options(found) == options) {
         // Live at the last query and erased since: erase + insert is an update (invariant 3).
         slot.pending = Pending::kUpdate;
         slot.box = Fatten(box);
@@ -103,11 +105,13 @@ class KeyedEngine final : public Broadphase<Core::kDim, typename Core::Coord, Ke
     Slot& slot = slots_[h];
     slot.key = key;
     slot.box = Fatten(box);
-    slot.options = options;
     slot.live = false;
     slot.pending = Pending::kInsert;
     index_.Insert(key, h);
     Enqueue(h);
+    if (options != ObjectOptions{} || core_.tracker().filtering()) {
+      insert_options_.push_back({h, options});
+    }
     return Status::Ok();
   }
 
@@ -154,6 +158,13 @@ class KeyedEngine final : public Broadphase<Core::kDim, typename Core::Coord, Ke
     updates_.clear();
     inserts_.clear();
     PairTracker& tracker = core_.tracker();
+    // The tracker learns an inserted object's options before the core pairs it (invariant 5).
+    // Default options need no call until some object has others (see PairTracker::SetOptions);
+    // an object inserted and erased since is skipped (its handle is not reused before commit).
+    for (const auto& [h, options] : insert_options_) {
+      if (slots_[h].pending == Pending::kInsert) tracker.SetOptions(h, options);
+    }
+    insert_options_.clear();
     for (size_t i = 0; i < queue_.size(); ++i) {
       if (i + 8 < queue_.size()) __builtin_prefetch(&slots_[queue_[i + 8]]);
       const uint32_t h = queue_[i];
@@ -167,7 +178,6 @@ class KeyedEngine final : public Broadphase<Core::kDim, typename Core::Coord, Ke
           break;
         case Pending::kInsert:
           inserts_.push_back({h, slot.box});
-          tracker.SetOptions(h, slot.options);
           break;
         case Pending::kNone:
           break;
@@ -245,14 +255,12 @@ class KeyedEngine final : public Broadphase<Core::kDim, typename Core::Coord, Ke
       return Status(StatusCode::kInternal, std::string("front end: ") + what);
     };
     if (core_.tracker().pending_changes() != 0) return fail("changed pairs left after a query");
+    if (!insert_options_.empty()) return fail("insert options left after a query");
     size_t live = 0, present = 0, queued = 0;
     for (uint32_t h = 0; h < slots_.size(); ++h) {
       const Slot& slot = slots_[h];
       live += slot.live ? 1 : 0;
       queued += slot.queued ? 1 : 0;
-      if (slot.live && !(core_.tracker().options(h) == slot.options)) {
-        return fail("the tracker holds other options than the slot");
-      }
       if (Present(slot)) {
         ++present;
         if (Find(slot.key) != h) return fail("present key not mapped");
@@ -296,8 +304,7 @@ class KeyedEngine final : public Broadphase<Core::kDim, typename Core::Coord, Ke
   enum class Pending : uint8_t { kNone, kInsert, kUpdate, kErase };
   struct Slot {
     Key key{};
-    BoxType box;  // the client's box, or its fat box with a margin
-    ObjectOptions options;
+    BoxType box;          // the client's box, or its fat box with a margin
     bool live = false;    // present as of the last query
     bool queued = false;  // in queue_
     Pending pending = Pending::kNone;
@@ -393,6 +400,7 @@ class KeyedEngine final : public Broadphase<Core::kDim, typename Core::Coord, Ke
   KeyIndex<Key> index_;  // key -> handle (see invariant 1)
   std::vector<uint32_t> free_;
   std::vector<uint32_t> queue_;
+  std::vector<std::pair<uint32_t, ObjectOptions>> insert_options_;  // pending inserts' options
   // Per-query buffers, kept to reuse their allocations.
   std::vector<uint32_t> erases_;
   std::vector<HandleBox<K, T>> updates_;
