@@ -143,6 +143,8 @@ class DenseCellCore {
   static constexpr uint32_t kBlock = 16;
   static constexpr size_t kRows = 2 * kAxes;  // lo and hi of each axis
   static constexpr size_t kBlockValues = kRows * kBlock;
+  // Up to this many changed slots, a query tests against the current rows (no scratch copy).
+  static constexpr size_t kFewChanges = 8;
 
   struct Change {
     uint32_t a, b;
@@ -197,8 +199,28 @@ class DenseCellCore {
     before_.push_back(Before{live ? BoxAt(h) : Box<K, T>{}, live ? 1u : 0u});
   }
 
-  // The pairs whose status differs between the last query and now, each reported once.
+  // The pairs whose status differs between the last query and now, each reported once. With
+  // few changed slots (most cells in most frames) the current rows stand for "then" too, which
+  // they are for every unchanged slot, and the pairs among the changed slots are decided one by
+  // one; with more, the scratch holds the rows as they were and one pass settles every pair.
   void FindChanges() {
+    if (changed_.size() <= kFewChanges) {
+      for (uint32_t r = 0; r < changed_.size(); ++r) {
+        const uint32_t c = changed_[r];
+        ScanBlocks(rows_.data(), is_.data(), c, before_[r], nullptr, [&](uint32_t j, bool now) {
+          if (std::find(changed_.begin(), changed_.end(), j) != changed_.end()) return;
+          if (Accepts(c, j)) changes_.push_back(Change{c, j, now});
+        });
+        for (uint32_t q = r + 1; q < changed_.size(); ++q) {
+          const uint32_t j = changed_[q];
+          const bool then = before_[r].live != 0 && before_[q].live != 0 &&
+                            Overlaps(before_[r].box, before_[q].box);
+          const bool now = is_[c] != 0 && is_[j] != 0 && Overlaps(BoxAt(c), BoxAt(j));
+          if (then != now && Accepts(c, j)) changes_.push_back(Change{c, j, now});
+        }
+      }
+      return;
+    }
     Scratch& s = ThreadScratch();
     s.then_rows.assign(rows_.begin(), rows_.end());
     s.then_live.assign(is_.begin(), is_.end());
@@ -217,29 +239,40 @@ class DenseCellCore {
         s.then_rows[At(h, 2 * a + 1)] = before_[r].box.hi[a];
       }
     }
-    for (uint32_t h : changed_) Scan(s, h);
+    for (uint32_t r = 0; r < changed_.size(); ++r) {
+      const uint32_t c = changed_[r];
+      ScanBlocks(s.then_rows.data(), s.then_live.data(), c, before_[r], s.steady.data(),
+                 [&](uint32_t j, bool now) {
+                   if (s.changed[j] != 0 && j < c) return;  // decided from j's side
+                   if (Accepts(c, j)) changes_.push_back(Change{c, j, now});
+                 });
+    }
   }
 
-  // The pairs of changed slot c whose status differs between the last query and now. Blocks are
-  // tested branch-free (vectorised), and only a block with a difference is looked at slot by
-  // slot. A pair of two changed slots is decided by the lower slot, so a block below c's with no
-  // steady live slot is skipped (when every object moves, that halves the tests).
-  void Scan(const Scratch& s, uint32_t c) {
-    const uint32_t wc = s.then_live[c], ic = is_[c];
+  // Calls report(j, overlapping_now) for every slot j != c whose pair with changed slot c
+  // differs between "then" (then_rows, then_live, and c's old state) and now. Blocks are tested
+  // branch-free (vectorised), and only a block with a difference is looked at slot by slot. With
+  // `steady` (live unchanged slots per block), a block below c's without any is skipped: its
+  // pairs with c are decided by its own changed slots (when every object moves, that halves the
+  // tests).
+  template <class Report>
+  void ScanBlocks(const T* then_rows, const uint32_t* then_live, uint32_t c, const Before& old,
+                  const uint32_t* steady, Report&& report) {
+    const uint32_t wc = old.live, ic = is_[c];
     T plo[kAxes], phi[kAxes], nlo[kAxes], nhi[kAxes];
     for (size_t a = 0; a < kAxes; ++a) {
-      plo[a] = s.then_rows[At(c, 2 * a)];
-      phi[a] = s.then_rows[At(c, 2 * a + 1)];
+      plo[a] = old.box.lo[a];
+      phi[a] = old.box.hi[a];
       nlo[a] = rows_[At(c, 2 * a)];
       nhi[a] = rows_[At(c, 2 * a + 1)];
     }
     const uint32_t c_block = c / kBlock;
     for (uint32_t base = 0; base < size_; base += kBlock) {
-      if (base / kBlock < c_block && s.steady[base / kBlock] == 0) continue;
+      if (steady != nullptr && base / kBlock < c_block && steady[base / kBlock] == 0) continue;
       tests_ += 2 * kBlock;
-      const T* __restrict then_block = s.then_rows.data() + size_t{base / kBlock} * kBlockValues;
+      const T* __restrict then_block = then_rows + size_t{base / kBlock} * kBlockValues;
       const T* __restrict now_block = rows_.data() + size_t{base / kBlock} * kBlockValues;
-      const uint32_t* __restrict was = s.then_live.data() + base;
+      const uint32_t* __restrict was = then_live + base;
       const uint32_t* __restrict is = is_.data() + base;
       uint32_t then_mask[kBlock], now_mask[kBlock];
       for (uint32_t i = 0; i < kBlock; ++i) {
@@ -261,12 +294,8 @@ class DenseCellCore {
       for (uint32_t i = 0; i < kBlock; ++i) any |= then_mask[i] ^ now_mask[i];
       if (any == 0) continue;
       for (uint32_t i = 0; i < kBlock; ++i) {
-        if (then_mask[i] == now_mask[i]) continue;
-        const uint32_t j = base + i;
-        if (j == c) continue;
-        if (s.changed[j] != 0 && j < c) continue;  // decided from j's side
-        if (!Accepts(c, j)) continue;
-        changes_.push_back(Change{c, j, now_mask[i] != 0});
+        if (then_mask[i] == now_mask[i] || base + i == c) continue;
+        report(base + i, now_mask[i] != 0);
       }
     }
   }
