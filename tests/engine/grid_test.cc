@@ -338,6 +338,14 @@ TEST(Grid, ThreadCountDoesNotChangeEvents) {
   for (unsigned threads : {2u, 4u}) {
     EXPECT_TRUE(SceneEvents<Batch>(threads, 3000, 3000, 100, 20) == batch);
   }
+  // Dense cells: per-thread scratch when many objects of a cell change, and the same events.
+  using Dense = GridDense<3, float>;
+  const auto dense = SceneEvents<Dense>(1, 3000, 3000, 100, 20);
+  EXPECT_TRUE(dense == batch);
+  for (unsigned threads : {2u, 4u}) {
+    EXPECT_TRUE(SceneEvents<Dense>(threads, 3000, 3000, 100, 20) == dense);
+    EXPECT_TRUE(SceneEvents<Dense>(threads, 3000, 600, 40, 30) == one);
+  }
 }
 
 TEST(Grid, ValidatorNoticesCorruption) {

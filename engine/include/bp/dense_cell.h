@@ -213,6 +213,7 @@ class DenseCellCore {
         });
         for (uint32_t q = r + 1; q < changed_.size(); ++q) {
           const uint32_t j = changed_[q];
+          BP_ASSERT(j != c);  // one operation per slot and query
           const bool then = before_[r].live != 0 && before_[q].live != 0 &&
                             Overlaps(before_[r].box, before_[q].box);
           const bool now = is_[c] != 0 && is_[j] != 0 && Overlaps(BoxAt(c), BoxAt(j));

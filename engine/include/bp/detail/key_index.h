@@ -111,10 +111,11 @@ class KeyIndex {
   };
 
   // Keys that differ only in their low kRunBits bits of hash share a run of 2^kRunBits slots,
-  // in the order of those bits: std::hash of an integer is the integer itself, so consecutive
-  // ids (the usual client numbering) land in consecutive entries, and a frame that updates
-  // them in id order reads the table almost sequentially. The run itself is placed by a mix64
-  // finaliser of the remaining bits, so strided or clustered ids still spread.
+  // one slot each (those bits, xor-ed with bits of the run's hash): std::hash of an integer is
+  // the integer itself, so consecutive ids (the usual client numbering) land in the same few
+  // lines, and a frame that updates them in id order reads the table almost sequentially. The
+  // run is placed by a mix64 finaliser of the remaining bits, and the xor spreads keys whose low
+  // bits never vary (ids in steps of 16, aligned addresses) over the whole run.
   static constexpr int kRunBits = 4;
   static uint32_t Tag(const Key& key) {
     const uint64_t h = static_cast<uint64_t>(std::hash<Key>{}(key));
@@ -123,7 +124,7 @@ class KeyIndex {
     z = (z ^ (z >> 27)) * 0x94D049BB133111EBULL;
     z ^= z >> 31;
     const uint32_t run = static_cast<uint32_t>(z >> (64 - (32 - kRunBits)));
-    return run << kRunBits | static_cast<uint32_t>(h & ((1u << kRunBits) - 1));
+    return run << kRunBits | static_cast<uint32_t>((h ^ z) & ((1u << kRunBits) - 1));
   }
   // The home slot: the top bits of the run's part of the tag, then the key's low bits.
   size_t Home(uint32_t tag) const {
