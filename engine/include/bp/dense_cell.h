@@ -36,6 +36,7 @@
 #include "bp/broadphase.h"
 #include "bp/detail/assert.h"
 #include "bp/detail/keyed_engine.h"
+#include "bp/detail/pair_tracker.h"
 #include "bp/object_options.h"
 
 namespace bp {
@@ -86,18 +87,8 @@ class DenseCellCore {
   // ---- the grid's view of the cell's pairs (a SAP cell answers these through its tracker) ----
 
   /// Sets the options of slot h (before its insert).
-  void SetOptions(uint32_t h, const ObjectOptions& options) {
-    if (!filtering_) {
-      if (options == ObjectOptions{}) return;
-      filtering_ = true;
-    }
-    if (h >= options_of_.size()) options_of_.resize(size_t{h} + 1);
-    options_of_[h] = options;
-  }
-  const ObjectOptions& options(uint32_t h) const {
-    static const ObjectOptions kDefault;
-    return h < options_of_.size() ? options_of_[h] : kDefault;
-  }
+  void SetOptions(uint32_t h, const ObjectOptions& options) { options_of_.Set(h, options); }
+  const ObjectOptions& options(uint32_t h) const { return options_of_.Get(h); }
   /// Calls f(a, b, overlapping_now) for every pair whose status the last Apply changed.
   template <class F>
   void DrainChanges(F&& f) {
@@ -183,9 +174,7 @@ class DenseCellCore {
       rows_[At(h, 2 * a + 1)] = box.hi[a];
     }
   }
-  bool Accepts(uint32_t a, uint32_t b) const {
-    return !filtering_ || bp::Accepts(options(a), options(b));
-  }
+  bool Accepts(uint32_t a, uint32_t b) const { return options_of_.Accepts(a, b); }
   void Resize(size_t n) {
     rows_.resize(n * kRows);
     is_.resize(n, 0);
@@ -306,8 +295,7 @@ class DenseCellCore {
   std::vector<uint32_t> is_;  // live now (0 or 1)
   uint32_t size_ = 0;         // slots (the grid's local handles), a multiple of kBlock
   size_t live_ = 0;
-  std::vector<ObjectOptions> options_of_;  // by slot; empty while filtering_ is false
-  bool filtering_ = false;
+  OptionsTable options_of_;  // by slot
   // The query's changed slots, in order, with their state at the last query.
   std::vector<uint32_t> changed_;
   std::vector<Before> before_;

@@ -26,6 +26,34 @@ inline uint64_t HandlePair(uint32_t a, uint32_t b) {
 inline uint32_t PairFirst(uint64_t p) { return static_cast<uint32_t>(p >> 32); }
 inline uint32_t PairSecond(uint64_t p) { return static_cast<uint32_t>(p); }
 
+/// Each handle's ObjectOptions, stored only once some handle has non-default ones (until then a
+/// look-up costs a branch). Shared by PairTracker and the grid's dense cell.
+class OptionsTable {
+ public:
+  /// Sets the options of handle h (before any of its pairs is formed).
+  void Set(uint32_t h, const ObjectOptions& options) {
+    if (!filtering_) {
+      if (options == ObjectOptions{}) return;
+      filtering_ = true;
+    }
+    if (h >= options_.size()) options_.resize(size_t{h} + 1);
+    options_[h] = options;
+  }
+  /// The options of handle h.
+  const ObjectOptions& Get(uint32_t h) const {
+    static const ObjectOptions kDefault;
+    return h < options_.size() ? options_[h] : kDefault;
+  }
+  /// True iff some handle has had non-default options (then Set must see every insert).
+  bool filtering() const { return filtering_; }
+  /// True iff the pair (a, b) may be tracked (see bp/object_options.h).
+  bool Accepts(uint32_t a, uint32_t b) const { return !filtering_ || bp::Accepts(Get(a), Get(b)); }
+
+ private:
+  std::vector<ObjectOptions> options_;  // by handle; empty while filtering_ is false
+  bool filtering_ = false;
+};
+
 class PairTracker {
  public:
   /// Records that a and b overlap (idempotent); true if they did not before. A pair that fails
@@ -48,25 +76,13 @@ class PairTracker {
 
   /// Sets the options of handle h (before any of its pairs is added). Default options cost
   /// nothing until some handle has non-default ones.
-  void SetOptions(uint32_t h, const ObjectOptions& options) {
-    if (!filtering_) {
-      if (options == ObjectOptions{}) return;
-      filtering_ = true;
-    }
-    if (h >= options_.size()) options_.resize(size_t{h} + 1);
-    options_[h] = options;
-  }
+  void SetOptions(uint32_t h, const ObjectOptions& options) { options_.Set(h, options); }
   /// The options of handle h.
-  const ObjectOptions& options(uint32_t h) const {
-    static const ObjectOptions kDefault;
-    return h < options_.size() ? options_[h] : kDefault;
-  }
+  const ObjectOptions& options(uint32_t h) const { return options_.Get(h); }
   /// True iff some handle has had non-default options (then SetOptions must see every insert).
-  bool filtering() const { return filtering_; }
+  bool filtering() const { return options_.filtering(); }
   /// True iff the pair (a, b) may be tracked (see bp/object_options.h).
-  bool Accepts(uint32_t a, uint32_t b) const {
-    return !filtering_ || bp::Accepts(options(a), options(b));
-  }
+  bool Accepts(uint32_t a, uint32_t b) const { return options_.Accepts(a, b); }
 
   /// Calls f(a, b, overlapping_now) for every pair changed since the last drain, then forgets
   /// them. O(toggles since the last drain): the section 3.3 bound, whatever earlier queries did.
@@ -96,8 +112,7 @@ class PairTracker {
   }
 
   FlatSet<uint64_t> overlaps_;
-  std::vector<ObjectOptions> options_;  // by handle; empty while filtering_ is false
-  bool filtering_ = false;
+  OptionsTable options_;
   FlatSet<uint64_t> changed_;      // pairs whose state differs from the last drain
   std::vector<uint64_t> toggled_;  // every pair that entered changed_ since the last drain
 };
