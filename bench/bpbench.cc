@@ -14,6 +14,7 @@
 //   bpbench --figure 10|11                    the paper's multi-cell figures: grids and octree
 #include <algorithm>
 #include <cinttypes>
+#include <cmath>
 #include <cstdint>
 #include <cstdio>
 #include <iterator>
@@ -22,6 +23,7 @@
 #include <string>
 #include <vector>
 
+#include "peer.h"
 #include <CLI/CLI.hpp>
 #include <sys/resource.h>
 #include <unistd.h>
@@ -53,14 +55,18 @@ struct Config {
   unsigned threads = 1;    // grid engines
   uint32_t big_boxes = 0;  // static boxes of big_width cube widths added to the scene
   double big_width = 50;
-  bool world_box = false;    // one static box covering the whole scene
-  double margin = 0;         // fattened boxes' margin in cube widths (0: exact)
-  bool static_rest = false;  // resting slots' objects inserted static
+  bool world_box = false;         // one static box covering the whole scene
+  double margin = 0;              // fattened boxes' margin in cube widths (0: exact)
+  bool static_rest = false;       // resting slots' objects inserted static
+  bool error_vs_double = false;   // float engine; errors counted against a double engine
+  std::string shape = "uniform";  // the scene's layout (bp::workload::Shape)
+  double offset = 0;              // added to every coordinate (a world far from the origin)
   uint32_t octree_capacity = bp::DynamicOctreeOptions().max_objects_per_node;
   uint32_t octree_depth = bp::DynamicOctreeOptions().max_depth;
   int repeats = 5;
   int frames = 0;  // 0: the scenario's own
   bool progress = false;
+  std::string peer;  // set on a peer library's result line
 };
 
 struct Result {
@@ -199,8 +205,8 @@ void AddStaticBoxes(const Config& cfg, const SceneParams& p, bp::Broadphase<K, T
   if (cfg.world_box) {
     bp::Box<K, T> b;
     for (size_t a = 0; a < static_cast<size_t>(K); ++a) {
-      b.lo[a] = static_cast<T>(-1);
-      b.hi[a] = static_cast<T>(side + 1);
+      b.lo[a] = static_cast<T>(-1) + static_cast<T>(cfg.offset);
+      b.hi[a] = static_cast<T>(side + 1) + static_cast<T>(cfg.offset);
     }
     if (!engine->Insert(id++, b, StaticIf(cfg)).ok())
       std::fprintf(stderr, "bpbench: world box refused\n");
@@ -211,32 +217,33 @@ void AddStaticBoxes(const Config& cfg, const SceneParams& p, bp::Broadphase<K, T
     for (size_t a = 0; a < static_cast<size_t>(K); ++a) {
       double u = static_cast<double>(bp::workload::SplitMix64(state) >> 11) * 0x1p-53;
       double lo = u * std::max(0.0, side - cfg.big_width);
-      b.lo[a] = static_cast<T>(lo);
-      b.hi[a] = static_cast<T>(lo + cfg.big_width);
+      b.lo[a] = static_cast<T>(lo) + static_cast<T>(cfg.offset);
+      b.hi[a] = static_cast<T>(lo + cfg.big_width) + static_cast<T>(cfg.offset);
     }
     if (!engine->Insert(id++, b, StaticIf(cfg)).ok())
       std::fprintf(stderr, "bpbench: big box refused\n");
   }
 }
 
-template <int K, class T>
+// TE: the exact engine's coordinates (T, or double for --error-vs-double).
+template <int K, class T, class TE = T>
 Result RunTyped(const SceneParams& params, int frames, const Config& cfg,
                 const std::string& label) {
   Result r;
-  const bool fat = cfg.margin > 0;
+  const bool fat = cfg.margin > 0 || cfg.error_vs_double;
   for (int rep = 0; rep < cfg.repeats; ++rep) {
     auto engine = MakeEngine<K, T>(cfg, static_cast<T>(cfg.margin));
     AddStaticBoxes<K, T>(cfg, params, engine.get());
     bp::workload::SceneRunner<K, T> runner(*engine, params, cfg.static_rest);
     // With a margin, the first run also drives an exact engine through the same scene, untimed,
     // and compares the overlap sets after every frame.
-    std::unique_ptr<bp::Broadphase<K, T>> exact;
-    std::unique_ptr<bp::workload::SceneRunner<K, T>> exact_runner;
+    std::unique_ptr<bp::Broadphase<K, TE>> exact;
+    std::unique_ptr<bp::workload::SceneRunner<K, TE>> exact_runner;
     if (fat && rep == 0) {
-      exact = MakeEngine<K, T>(cfg, T{});
-      AddStaticBoxes<K, T>(cfg, params, exact.get());
+      exact = MakeEngine<K, TE>(cfg, TE{});
+      AddStaticBoxes<K, TE>(cfg, params, exact.get());
       exact_runner =
-          std::make_unique<bp::workload::SceneRunner<K, T>>(*exact, params, cfg.static_rest);
+          std::make_unique<bp::workload::SceneRunner<K, TE>>(*exact, params, cfg.static_rest);
       exact_runner->Build();
     }
     double build = runner.Build();
@@ -282,7 +289,22 @@ Result RunTyped(const SceneParams& params, int frames, const Config& cfg,
   return r;
 }
 
-Result Run(const SceneParams& params, int frames, const Config& cfg, const std::string& label) {
+// The scenario's parameters with the configuration's shape and offset.
+SceneParams Shaped(SceneParams p, const Config& cfg) {
+  if (!bp::workload::ParseShape(cfg.shape.c_str(), &p.shape))
+    p.shape = bp::workload::Shape::kUniform;
+  p.offset = cfg.offset;
+  return p;
+}
+
+// The golden values hold only for WORKLOADS.md's own scene.
+bool GoldenScene(const Config& cfg) {
+  return cfg.margin == 0 && !cfg.static_rest && cfg.shape == "uniform" && cfg.offset == 0 &&
+         !cfg.error_vs_double;
+}
+
+Result Run(const SceneParams& scenario, int frames, const Config& cfg, const std::string& label) {
+  const SceneParams params = Shaped(scenario, cfg);
   bool planar = params.dim == 2;
   if (cfg.coord == "double") {
     return planar ? RunTyped<2, double>(params, frames, cfg, label)
@@ -291,6 +313,10 @@ Result Run(const SceneParams& params, int frames, const Config& cfg, const std::
   if (cfg.coord == "int32") {
     return planar ? RunTyped<2, int32_t>(params, frames, cfg, label)
                   : RunTyped<3, int32_t>(params, frames, cfg, label);
+  }
+  if (cfg.error_vs_double) {
+    return planar ? RunTyped<2, float, double>(params, frames, cfg, label)
+                  : RunTyped<3, float, double>(params, frames, cfg, label);
   }
   return planar ? RunTyped<2, float>(params, frames, cfg, label)
                 : RunTyped<3, float>(params, frames, cfg, label);
@@ -320,7 +346,7 @@ void PrintJson(const std::string& scenario, const SceneParams& p, int frames, co
   }
   if (cfg.engine == "dynamic_octree") {
     o << ",\"octree_capacity\":" << cfg.octree_capacity << ",\"octree_depth\":" << cfg.octree_depth;
-  } else if (cfg.engine != "brute_force") {
+  } else if (cfg.engine != "brute_force" && cfg.peer.empty()) {
     bool batch = cfg.engine == "batch_sap" || cfg.engine == "grid_batch_sap";
     double fraction =
         batch ? BatchOptions(cfg).global_sort_fraction : SapOptions(cfg).global_sort_fraction;
@@ -328,7 +354,10 @@ void PrintJson(const std::string& scenario, const SceneParams& p, int frames, co
   }
   if (!cfg.variant.empty()) o << ",\"variant\":\"" << cfg.variant << "\"";
   if (cfg.static_rest) o << ",\"static_rest\":true";
-  if (cfg.margin > 0) {
+  if (cfg.shape != "uniform") o << ",\"shape\":\"" << cfg.shape << "\"";
+  if (cfg.offset != 0) o << ",\"offset\":" << cfg.offset;
+  if (cfg.margin > 0 || cfg.error_vs_double) {
+    if (cfg.error_vs_double) o << ",\"error_vs\":\"double\"";
     const double ef = static_cast<double>(std::max<uint64_t>(r.error_frames, 1));
     o << ",\"margin\":" << cfg.margin
       << ",\"false_pos_per_frame\":" << static_cast<double>(r.false_pos) / ef
@@ -361,6 +390,84 @@ void PrintJson(const std::string& scenario, const SceneParams& p, int frames, co
   o << ",\"peak_rss_kb\":" << PeakRssKb() << "}";
   std::printf("%s\n", o.str().c_str());
   std::fflush(stdout);
+}
+
+// The peer libraries named in list ("all", or names separated by commas); false on an unknown
+// name or one this build lacks.
+bool SelectPeers(const std::string& list, std::vector<const bp::bench::PeerInfo*>* out) {
+  const auto& peers = bp::bench::Peers();
+  std::stringstream names(list);
+  std::string name;
+  while (std::getline(names, name, ',')) {
+    if (name.empty()) continue;
+    bool found = false;
+    for (const auto& p : peers) {
+      if (name == "all" || name == p.name) {
+        out->push_back(&p);
+        found = true;
+      }
+    }
+    if (!found && name != "all") {
+      std::fprintf(stderr, "bpbench: peer '%s' is not in this build (bpbench --peers list)\n",
+                   name.c_str());
+      return false;
+    }
+  }
+  return true;
+}
+
+// Runs each peer through the scenario our engine just ran (result ours) and prints its line:
+// the same fields, plus the ratio of its median to ours and whether its exact set matched ours
+// after the last frame and over the whole chain.
+void RunPeers(const std::vector<const bp::bench::PeerInfo*>& peers, const std::string& scenario,
+              const SceneParams& scenario_params, int frames, const Config& cfg, const Result& ours,
+              const GoldenScenario* golden) {
+  const SceneParams params = Shaped(scenario_params, cfg);
+  for (const bp::bench::PeerInfo* info : peers) {
+    Config pc = cfg;
+    pc.engine = info->name;
+    pc.peer = info->description;
+    if (info->max_objects != 0 && params.n > info->max_objects) {
+      std::printf(
+          "{\"scenario\":\"%s\",\"engine\":\"%s\",\"library\":\"%s\",\"n\":%u,"
+          "\"skipped\":\"%s\"}\n",
+          scenario.c_str(), info->name.c_str(), info->description.c_str(), params.n,
+          info->limit_reason.c_str());
+      std::fflush(stdout);
+      continue;
+    }
+    const std::string label = scenario + " " + info->name;
+    auto progress = [&](int rep, int f) {
+      if (cfg.progress && (f % 5 == 0 || f == frames)) {
+        std::fprintf(stderr, "\r%-40s repeat %d/%d frame %3d/%d", label.c_str(), rep + 1,
+                     cfg.repeats, f, frames);
+      }
+    };
+    bp::bench::PeerRun run =
+        bp::bench::RunPeer(*info, params, frames, cfg.repeats, cfg.coord, progress);
+    if (cfg.progress) std::fprintf(stderr, "\r%-80s\r", "");
+    Result r;
+    r.frame_ms = run.frame_ms;
+    r.run_medians = run.run_medians;
+    r.build_ms = run.build_ms;
+    r.pairs0 = run.pairs0;
+    r.pairs = run.pairs;
+    r.collides = run.collides;
+    r.uncollides = run.uncollides;
+    r.set_hash = run.set_hash;
+    r.chain = run.chain;
+    const double ours_ms = Quantile(ours.run_medians, 0.5);
+    std::ostringstream extra;
+    extra.precision(6);
+    extra << ",\"library\":\"" << info->description << "\",\"compared_to\":\"" << cfg.engine
+          << "\",\"ratio_to_engine\":" << (ours_ms > 0 ? Quantile(r.run_medians, 0.5) / ours_ms : 0)
+          << ",\"same_set_as_engine\":"
+          << (r.set_hash == ours.set_hash && r.chain == ours.chain ? "true" : "false")
+          << ",\"candidates_per_frame\":"
+          << static_cast<double>(run.candidates) / std::max(frames, 1)
+          << ",\"duplicate_candidates\":" << run.duplicates;
+    PrintJson(scenario, scenario_params, frames, pc, r, golden, extra.str());
+  }
 }
 
 // Local versus global sort as the moving fraction grows (one SAP instance, churn 1; churn 0 for
@@ -447,6 +554,56 @@ void GridFigure(int figure, const Config& base) {
   }
 }
 
+// Least-squares slope of log(y) against log(x): the growth exponent of y(x).
+double FitExponent(const std::vector<double>& x, const std::vector<double>& y) {
+  double sx = 0, sy = 0, sxx = 0, sxy = 0;
+  const auto n = static_cast<double>(x.size());
+  for (size_t i = 0; i < x.size(); ++i) {
+    const double lx = std::log(x[i]), ly = std::log(std::max(y[i], 1e-12));
+    sx += lx;
+    sy += ly;
+    sxx += lx * lx;
+    sxy += lx * ly;
+  }
+  const double den = n * sxx - sx * sx;
+  return den > 0 ? (n * sxy - sx * sy) / den : 0;
+}
+
+// The paper's Figure 2: one SAP instance with every object moving and no churn, n swept; the
+// frame time grows as n^1.76 there (theory: the swaps grow as n^(5/3)). The same sweep through
+// the grids shows what subdivision does to it. After the points, one "fig2-fit" line per engine
+// with the fitted exponents of the frame time and of the swaps (or overlap tests).
+void Figure2(const Config& base, const std::vector<uint32_t>& sizes) {
+  const int frames = base.frames > 0 ? base.frames : 20;
+  for (const char* engine : {"segmented_sap", "batch_sap", "grid_segmented_sap", "grid_dense"}) {
+    std::vector<double> ns, ms, work;
+    for (uint32_t n : sizes) {
+      SceneParams p;
+      p.n = n;
+      p.moving = n;
+      p.churn = 0;
+      Config cfg = base;
+      cfg.engine = engine;
+      cfg.variant = engine;
+      Result r = Run(p, frames, cfg, "fig2 n=" + std::to_string(n) + " " + engine);
+      PrintJson("fig2", p, frames, cfg, r, nullptr, "");
+      ns.push_back(n);
+      ms.push_back(Quantile(r.run_medians, 0.5));
+      const double per_frame = static_cast<double>(r.swaps != 0 ? r.swaps : r.tests) /
+                               static_cast<double>(std::max<size_t>(r.frame_ms.size(), 1));
+      work.push_back(per_frame);
+    }
+    std::printf(
+        "{\"scenario\":\"fig2-fit\",\"engine\":\"%s\",\"n_min\":%u,\"n_max\":%u,\"points\":%zu,"
+        "\"time_exponent\":%.4f,\"work_exponent\":%.4f,\"work\":\"%s\",\"paper_exponent\":1.76,"
+        "\"theory_exponent\":%.4f}\n",
+        engine, sizes.front(), sizes.back(), ns.size(), FitExponent(ns, ms), FitExponent(ns, work),
+        std::string(engine).find("dense") != std::string::npos ? "overlap tests" : "swaps",
+        5.0 / 3.0);
+    std::fflush(stdout);
+  }
+}
+
 // The paper's single-cell figures (section 4.1), 3000 objects (or `objects`), no subdivision:
 //  8: one insert and one erase per frame, moving fraction swept from 5% to 100%;
 //  9: 5% moving (150 of 3000), inserts = erases per frame swept from 1 to 100.
@@ -522,6 +679,21 @@ int main(int argc, char** argv) {
   app.add_flag("--static-rest", cfg.static_rest,
                "insert the objects of resting slots as static (no static-static pairs; the golden "
                "hashes no longer apply)");
+  app.add_option(
+         "--shape", cfg.shape,
+         "the scene's layout: uniform (WORKLOADS.md's), clustered (90% of the objects in 1% "
+         "of the volume), mixed (widths 1e-3 to 1e3), fast (a tenth of the movers at 25 "
+         "widths per frame)")
+      ->check(CLI::IsMember({"uniform", "clustered", "mixed", "fast"}))
+      ->capture_default_str();
+  app.add_option("--offset", cfg.offset,
+                 "add this to every coordinate, in the engine's coordinate type (a world far "
+                 "from the origin: 1e6 for float, 1e12 for double)")
+      ->capture_default_str();
+  app.add_flag("--error-vs-double", cfg.error_vs_double,
+               "float coordinates fed double input: a float engine, with false positives and "
+               "negatives per frame counted against a double engine on the same scene (with "
+               "--offset the scene is exact in double and rounded in float)");
   std::vector<double> margin_sweep;
   app.add_option("--margin-sweep", margin_sweep,
                  "run each scenario once per margin (cube widths): error against run time");
@@ -566,24 +738,61 @@ int main(int argc, char** argv) {
   int figure = 0;
   uint32_t figure_objects = 3000;
   app.add_option("--figure", figure,
-                 "the paper's figure 8 or 9 (single cell, every cell variant), 10 or 11 (grid over "
-                 "either cell and the octree)")
-      ->check(CLI::IsMember({8, 9, 10, 11}));
+                 "the paper's figure 2 (one SAP instance, all moving, n swept: growth exponent), "
+                 "8 or 9 (single cell, every cell variant), 10 or 11 (grid over either cell and "
+                 "the octree)")
+      ->check(CLI::IsMember({2, 8, 9, 10, 11}));
   app.add_option("--figure-objects", figure_objects, "objects of the figure's scene (paper: 3000)")
       ->check(CLI::Range(20u, 10000000u))
       ->capture_default_str();
-  app.add_option("--sweep-sizes", sweep_sizes, "object counts of the threshold sweep")
+  app.add_option("--sweep-sizes", sweep_sizes,
+                 "object counts of the threshold sweep, or of --figure 2 (default 1000 to 128000, "
+                 "doubling)")
       ->capture_default_str();
+  std::string peer_list;
+  app.add_option("--peers", peer_list,
+                 "after each scenario, run these peer libraries through the same scene in this "
+                 "process: all, or names separated by commas; 'list' shows what this build has");
   CLI11_PARSE(app, argc, argv);
+  if (peer_list == "list") {
+    for (const auto& p : bp::bench::Peers()) {
+      std::printf("%-18s %s%s%s\n", p.name.c_str(), p.description.c_str(),
+                  p.max_objects != 0 ? ", skipped above " : "",
+                  p.max_objects != 0 ? std::to_string(p.max_objects).c_str() : "");
+    }
+    if (bp::bench::Peers().empty()) std::printf("(no peer library was found at build time)\n");
+    return 0;
+  }
+  std::vector<const bp::bench::PeerInfo*> peers;
+  if (!SelectPeers(peer_list, &peers)) return 2;
   cfg.progress = isatty(STDERR_FILENO) != 0;
   if ((cfg.margin > 0 || !margin_sweep.empty()) && cfg.coord == "int32") {
     std::fprintf(stderr, "bpbench: --margin needs float or double coordinates\n");
+    return 2;
+  }
+  if (cfg.error_vs_double && cfg.coord != "float") {
+    std::fprintf(stderr, "bpbench: --error-vs-double measures a float engine: --coord float\n");
+    return 2;
+  }
+  if (cfg.offset != 0 && cfg.coord == "int32") {
+    std::fprintf(stderr, "bpbench: --offset needs float or double coordinates\n");
+    return 2;
+  }
+  if (!std::isfinite(cfg.offset)) {
+    std::fprintf(stderr, "bpbench: --offset must be finite\n");
     return 2;
   }
   if (margin_sweep.empty()) margin_sweep.push_back(cfg.margin);
 
   if (sweep) {
     ThresholdSweep(cfg, sweep_sizes);
+    return 0;
+  }
+  if (figure == 2) {
+    if (!app.count("--sweep-sizes")) {
+      sweep_sizes = {1000, 2000, 4000, 8000, 16000, 32000, 64000, 128000};
+    }
+    Figure2(cfg, sweep_sizes);
     return 0;
   }
   if (figure >= 10) {
@@ -604,6 +813,7 @@ int main(int argc, char** argv) {
     int frames = cfg.frames > 0 ? cfg.frames : 100;
     Result r = Run(p, frames, cfg, "custom");
     PrintJson("custom", p, frames, cfg, r, nullptr, "");
+    RunPeers(peers, "custom", p, frames, cfg, r, nullptr);
     return r.errors == 0 ? 0 : 1;
   }
   int status = 0;
@@ -620,9 +830,9 @@ int main(int argc, char** argv) {
       Config run_cfg = cfg;
       run_cfg.margin = margin;
       Result r = Run(g->Params(), frames, run_cfg, name + " " + cfg.engine);
-      // Golden values hold only for the exact scene.
-      const bool exact_scene = margin == 0 && !cfg.static_rest;
-      PrintJson(name, g->Params(), frames, run_cfg, r, exact_scene ? g : nullptr, "");
+      PrintJson(name, g->Params(), frames, run_cfg, r, GoldenScene(run_cfg) ? g : nullptr, "");
+      if (margin == 0)
+        RunPeers(peers, name, g->Params(), frames, cfg, r, GoldenScene(cfg) ? g : nullptr);
       if (r.errors != 0) status = 1;
     }
   }

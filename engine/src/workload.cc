@@ -5,6 +5,7 @@
 
 #include <algorithm>
 #include <cmath>
+#include <string_view>
 
 namespace bp::workload {
 
@@ -50,16 +51,56 @@ uint64_t Xoshiro256::Below(uint64_t bound) {
   return static_cast<uint64_t>((static_cast<U128>(Next()) * bound) >> 64);
 }
 
+const char* ShapeName(Shape shape) {
+  switch (shape) {
+    case Shape::kUniform:
+      return "uniform";
+    case Shape::kClustered:
+      return "clustered";
+    case Shape::kMixed:
+      return "mixed";
+    case Shape::kFast:
+      return "fast";
+  }
+  return "?";
+}
+
+bool ParseShape(const char* name, Shape* shape) {
+  for (Shape s : {Shape::kUniform, Shape::kClustered, Shape::kMixed, Shape::kFast}) {
+    if (std::string_view(name) == ShapeName(s)) {
+      *shape = s;
+      return true;
+    }
+  }
+  return false;
+}
+
 Scene::Scene(const SceneParams& params) : params_(params), rng_(params.seed) {
   const double w = params_.width;
   const double n = static_cast<double>(params_.n);
+  // The mean of width^dim over the objects: w^dim, or for kMixed the log-uniform mean
+  // (max^k - min^k) / (k ln(max / min)) in units of w^k.
+  double mean_volume = params_.dim == 2 ? w * w : w * w * w;
+  if (params_.shape == Shape::kMixed) {
+    const double k = params_.dim;
+    const double lo = params_.min_width, hi = params_.max_width;
+    mean_volume *=
+        hi > lo ? (std::pow(hi, k) - std::pow(lo, k)) / (k * std::log(hi / lo)) : std::pow(lo, k);
+  }
   if (params_.dim == 2) {
-    side_ = std::sqrt(n * (w * w) / params_.density);
+    side_ = std::sqrt(n * mean_volume / params_.density);
   } else {
-    side_ = std::cbrt(n * (w * w * w) / params_.density);
+    side_ = std::cbrt(n * mean_volume / params_.density);
   }
   lim_ = side_ - w;
   speed_ = params_.speed_fraction * w;
+  if (params_.shape == Shape::kClustered) {
+    const double share =
+        params_.dim == 2 ? std::sqrt(params_.cluster_volume) : std::cbrt(params_.cluster_volume);
+    const double cluster_side = std::min(side_, std::max(side_ * share, w + 2 * speed_));
+    cluster_.base = (side_ - cluster_side) / 2;
+    cluster_.lim = cluster_side - w;
+  }
   int e = 0;
   (void)std::frexp(2 * side_ + 2 * w, &e);  // 2 side + 2 w < 2^e
   grid_ = std::ldexp(1.0, e - 24);
@@ -71,22 +112,55 @@ Scene::Scene(const SceneParams& params) : params_(params), rng_(params.seed) {
   for (uint32_t i = 0; i < params_.n; ++i) {
     Slot& slot = slots_[i];
     slot.id = i;
-    RandomPosition(slot);
-    if (i < params_.moving) RandomVelocity(slot);
+    RandomPosition(i, slot);
+    if (i < params_.moving) RandomVelocity(i, slot);
     initial_.push_back(BoxOf(slot));
     initial_.back().moves = i < params_.moving;
   }
   next_id_ = params_.n;
 }
 
-void Scene::RandomPosition(Slot& slot) {
+Scene::Region Scene::RegionOf(uint32_t slot_index) const {
+  if (params_.shape == Shape::kClustered &&
+      slot_index % 10 < static_cast<uint32_t>(std::lround(params_.cluster_fraction * 10))) {
+    return cluster_;
+  }
+  return Region{0.0, lim_};
+}
+
+double Scene::SpeedOf(uint32_t slot_index, const Slot& slot) const {
+  switch (params_.shape) {
+    case Shape::kMixed:
+      return params_.speed_fraction * slot.w;
+    case Shape::kFast:
+      if (slot_index % 10 == 0) return std::min(params_.fast_speed * params_.width, lim_ / 2);
+      return speed_;
+    default:
+      return speed_;
+  }
+}
+
+void Scene::RandomPosition(uint32_t slot_index, Slot& slot) {
+  double lim = lim_, base = 0;
+  slot.w = params_.width;
+  if (params_.shape == Shape::kMixed) {
+    // Log-uniform in [min_width, max_width], at most half the side so that it fits.
+    const double u = rng_.Uniform01();
+    const double lo = std::log(params_.min_width), hi = std::log(params_.max_width);
+    slot.w = std::min(params_.width * std::exp(lo + u * (hi - lo)), side_ / 2);
+    lim = side_ - slot.w;
+  } else {
+    const Region r = RegionOf(slot_index);
+    base = r.base;
+    lim = r.lim;
+  }
   for (int a = 0; a < 3; ++a) {
-    slot.p[static_cast<size_t>(a)] = a < params_.dim ? rng_.Uniform01() * lim_ : 0.0;
+    slot.p[static_cast<size_t>(a)] = a < params_.dim ? base + rng_.Uniform01() * lim : 0.0;
   }
   slot.v = {0.0, 0.0, 0.0};
 }
 
-void Scene::RandomVelocity(Slot& slot) {
+void Scene::RandomVelocity(uint32_t slot_index, Slot& slot) {
   const auto dim = static_cast<size_t>(params_.dim);
   double r2 = 0;
   do {
@@ -96,7 +170,7 @@ void Scene::RandomVelocity(Slot& slot) {
     }
     for (size_t a = 0; a < dim; ++a) r2 += slot.v[a] * slot.v[a];
   } while (r2 > 1 || r2 < 1e-6);
-  const double scale = speed_ / std::sqrt(r2);
+  const double scale = SpeedOf(slot_index, slot) / std::sqrt(r2);
   for (size_t a = 0; a < dim; ++a) slot.v[a] *= scale;
 }
 
@@ -112,13 +186,29 @@ SceneBox Scene::BoxOf(const Slot& slot) const {
     const auto i = static_cast<size_t>(a);
     if (a < params_.dim) {
       box.lo[i] = Snap(slot.p[i]);
-      box.hi[i] = box.lo[i] + fw;
+      box.hi[i] = params_.shape == Shape::kMixed ? Snap(slot.p[i] + slot.w) : box.lo[i] + fw;
     } else {
       box.lo[i] = 0.0f;
       box.hi[i] = fw;
     }
   }
   return box;
+}
+
+// The specification's reflection, relative to the region's base: with base 0 (the uniform
+// scene) p - 0 and 0 + x are exact, so the golden scene is unchanged.
+void Scene::Bounce(Slot& slot, double base, double lim, size_t dim) {
+  for (size_t a = 0; a < dim; ++a) {
+    double x = (slot.p[a] - base) + slot.v[a];
+    if (x < 0) {
+      x = -x;
+      slot.v[a] = -slot.v[a];
+    } else if (x > lim) {
+      x = 2 * lim - x;
+      slot.v[a] = -slot.v[a];
+    }
+    slot.p[a] = base + x;
+  }
 }
 
 void Scene::NextFrame(FrameOps* out) {
@@ -136,8 +226,8 @@ void Scene::NextFrame(FrameOps* out) {
     Slot& slot = slots_[i];
     out->erases.push_back(slot.id);
     slot.id = next_id_++;
-    RandomPosition(slot);
-    if (i < params_.moving) RandomVelocity(slot);
+    RandomPosition(i, slot);
+    if (i < params_.moving) RandomVelocity(i, slot);
     out->inserts.push_back(BoxOf(slot));
     out->inserts.back().moves = i < params_.moving;
   }
@@ -148,17 +238,8 @@ void Scene::NextFrame(FrameOps* out) {
   for (uint32_t i = 0; i < moving; ++i) {
     if (chosen_[i]) continue;
     Slot& slot = slots_[i];
-    for (size_t a = 0; a < dim; ++a) {
-      double x = slot.p[a] + slot.v[a];
-      if (x < 0) {
-        x = -x;
-        slot.v[a] = -slot.v[a];
-      } else if (x > lim_) {
-        x = 2 * lim_ - x;
-        slot.v[a] = -slot.v[a];
-      }
-      slot.p[a] = x;
-    }
+    const Region r = params_.shape == Shape::kMixed ? Region{0.0, side_ - slot.w} : RegionOf(i);
+    Bounce(slot, r.base, r.lim, dim);
     out->updates.push_back(BoxOf(slot));
   }
   for (uint32_t i : replaced) chosen_[i] = 0;

@@ -3,6 +3,7 @@
 #include "bp/workload.h"
 
 #include <algorithm>
+#include <array>
 #include <cinttypes>
 #include <cmath>
 #include <cstdio>
@@ -360,6 +361,128 @@ TEST(SceneTest, FrameOpsShape) {
     EXPECT_LE(ops.updates.size(), params.moving);
     EXPECT_GE(ops.updates.size(), params.moving - params.churn);
   }
+}
+
+// The shapes of WORKLOADS.md's "scenes where uniform grids suffer" (Shape): what each promises.
+std::vector<SceneBox> ShapeFrames(const SceneParams& params, int frames, Scene* scene,
+                                  std::vector<SceneBox>* moved) {
+  FrameOps ops;
+  std::vector<SceneBox> all = scene->Initial();
+  for (int f = 0; f < frames; ++f) {
+    scene->NextFrame(&ops);
+    all.insert(all.end(), ops.inserts.begin(), ops.inserts.end());
+    moved->insert(moved->end(), ops.updates.begin(), ops.updates.end());
+  }
+  (void)params;
+  return all;
+}
+
+TEST(SceneShapes, ClusteredKeepsNineTenthsInOnePercentOfTheVolume) {
+  SceneParams p;
+  p.n = 5000;
+  p.moving = 2000;
+  p.churn = 50;
+  p.shape = Shape::kClustered;
+  Scene scene(p);
+  std::vector<SceneBox> moved;
+  std::vector<SceneBox> placed = ShapeFrames(p, 30, &scene, &moved);
+  const double side = scene.side(), cluster = side * std::cbrt(0.01);
+  const double base = (side - cluster) / 2;
+  auto inside = [&](const SceneBox& b) {
+    for (size_t a = 0; a < 3; ++a) {
+      if (b.lo[a] < base - scene.grid() || b.hi[a] > base + cluster + scene.grid()) return false;
+    }
+    return true;
+  };
+  size_t in = 0, total = 0;
+  for (const auto* list : {&placed, &moved}) {
+    for (const SceneBox& b : *list) {
+      in += inside(b);
+      ++total;
+    }
+  }
+  // Slots i % 10 != 9 stay in the cluster; the uniform tenth lands there 1% of the time.
+  EXPECT_NEAR(static_cast<double>(in) / static_cast<double>(total), 0.9, 0.01);
+}
+
+TEST(SceneShapes, MixedSpansSixDecadesOfWidth) {
+  SceneParams p;
+  p.n = 20000;
+  p.moving = 2000;
+  p.churn = 100;
+  p.shape = Shape::kMixed;
+  Scene scene(p);
+  std::vector<SceneBox> moved;
+  std::vector<SceneBox> placed = ShapeFrames(p, 5, &scene, &moved);
+  std::array<int, 8> decades{};
+  size_t points = 0;
+  for (const SceneBox& b : placed) {
+    const double w = static_cast<double>(b.hi[0]) - static_cast<double>(b.lo[0]);
+    ASSERT_GE(w, 0.0);
+    ASSERT_LE(b.hi[0], scene.side());
+    if (w < scene.grid()) {
+      ++points;  // below the snap grid: a point
+    } else {
+      ++decades[static_cast<size_t>(
+          std::clamp(static_cast<int>(std::floor(std::log10(w))) + 3, 0, 7))];
+    }
+  }
+  // Log-uniform in [1e-3, 1e3]: every decade from the snap grid's up to 1e2..1e3 is populated.
+  for (int d = static_cast<int>(std::ceil(std::log10(scene.grid()))) + 3; d < 6; ++d) {
+    EXPECT_GT(decades[static_cast<size_t>(d)], 1000) << "decade 1e" << d - 3;
+  }
+  EXPECT_EQ(decades[6] + decades[7], 0);
+  EXPECT_GT(points, 0u);
+}
+
+TEST(SceneShapes, FastMoversCrossManyWidthsPerFrame) {
+  SceneParams p;
+  p.n = 3000;
+  p.moving = 300;
+  p.churn = 0;
+  p.shape = Shape::kFast;
+  Scene scene(p);
+  FrameOps a, b;
+  scene.NextFrame(&a);
+  scene.NextFrame(&b);
+  ASSERT_EQ(a.updates.size(), b.updates.size());
+  for (size_t i = 0; i < a.updates.size(); ++i) {
+    double d2 = 0;
+    for (size_t k = 0; k < 3; ++k) {
+      const double d = static_cast<double>(b.updates[i].lo[k]) - a.updates[i].lo[k];
+      d2 += d * d;
+    }
+    // Bounces shorten a step; away from the walls it is the speed (to the snap grid).
+    if (i % 10 == 0) {
+      EXPECT_GT(std::sqrt(d2), 2.0) << "slot " << i;
+    } else {
+      EXPECT_LT(std::sqrt(d2), 0.1 + 4 * scene.grid()) << "slot " << i;
+    }
+  }
+}
+
+TEST(SceneShapes, OffsetIsAddedInTheEnginesType) {
+  SceneBox box;
+  box.lo = {1.0f, 2.5f, 3.0f};
+  box.hi = {2.0f, 3.5f, 4.0f};
+  Box<3, float> f = ToBox<3, float>(box, 1.0 / 1024, 1e6);
+  EXPECT_EQ(f.lo[1], 1e6f + 2.5f);  // 1000002.5 is a float
+  Box<3, double> d = ToBox<3, double>(box, 1.0 / 1024, 1e12);
+  EXPECT_EQ(d.lo[1], 1e12 + 2.5);
+  EXPECT_EQ(d.hi[2], 1e12 + 4.0);
+  SceneBox frac = box;
+  frac.lo[0] = 0.03125f;  // 1e6 + 1/32 rounds to 1e6 in float (a unit of 1/16 there)
+  EXPECT_EQ((ToBox<3, float>(frac, 1.0 / 1024, 1e6).lo[0]), 1e6f);
+}
+
+TEST(SceneShapes, NamesRoundTrip) {
+  for (Shape s : {Shape::kUniform, Shape::kClustered, Shape::kMixed, Shape::kFast}) {
+    Shape back = Shape::kUniform;
+    ASSERT_TRUE(ParseShape(ShapeName(s), &back));
+    EXPECT_EQ(back, s);
+  }
+  Shape unused;
+  EXPECT_FALSE(ParseShape("spiral", &unused));
 }
 
 TEST(HashTest, ChainAndSetHash) {

@@ -5,9 +5,11 @@
 //
 // Cells are hashed by their integer coordinates (the world is unbounded), created when an object
 // first enters them and recycled when their last object leaves. A cell coordinate is
-// floor(x / cell_size) clamped to [-2^(b-1), 2^(b-1)) with b = 63 / K bits, so coordinates far
-// from the origin land in the edge cells instead of overflowing. Any monotone map from
-// coordinates to cells keeps the grid exact: two boxes that overlap share a cell on every axis.
+// floor((x - origin) / cell_size) clamped to [-2^(b-1), 2^(b-1)) with b = 63 / K bits, so
+// coordinates far from the origin land in the edge cells instead of overflowing. The origin is
+// the middle of the first objects' centres (a multiple of the cell size), so a world far from
+// zero (1e12 in double) gets cells as small as one at zero. Any monotone map from coordinates to
+// cells keeps the grid exact: two boxes that overlap share a cell on every axis.
 //
 // An object covering at most `max_cells_per_object` cells lives in each of them (a cell knows it
 // by a local handle); a move within the same cells is an update in each, a move across cells is
@@ -119,12 +121,14 @@ class GridCore {
              std::span<const HandleBox<kDim, Coord>> inserts) {
     swaps_ = tests_ = cells_queried_ = 0;
     global_ = rebuilt_ = false;
-    if (inv_size_ == 0 && !inserts.empty()) {
-      // First objects: choose the automatic size from them.
-      SetCellSize(IdealCellSize(inserts.size(), [&](auto&& f) {
+    if (!placed_ && !inserts.empty()) {
+      // First objects: choose the origin, and the automatic size, from them.
+      Sizing sizing = IdealCellSize(inserts.size(), [&](auto&& f) {
         for (const auto& hb : inserts) f(hb.box);
-      }));
+      });
+      SetCellSize(inv_size_ == 0 ? sizing.size : cell_size_, sizing.middle);
       sized_for_ = inserts.size();
+      placed_ = true;
     }
     for (uint32_t h : erases) EraseObject(h);
     // Updates come in handle order, not memory order: the loads of each object's records miss
@@ -249,20 +253,27 @@ class GridCore {
 
   // --- cell coordinates ----------------------------------------------------------------------
 
-  void SetCellSize(double size) {
+  // The size, and an origin near middle on a multiple of the size (so that cell boundaries stay
+  // where a user who set the size expects them, wherever they are representable).
+  void SetCellSize(double size, const std::array<double, kAxes>& middle = {}) {
     cell_size_ = size;
     inv_size_ = 1.0 / size;
+    for (size_t a = 0; a < kAxes; ++a) {
+      double o = std::floor(middle[a] * inv_size_) * size;
+      origin_[a] = std::isfinite(o) ? o : 0.0;
+    }
   }
-  int64_t CellOf(Coord x) const {
-    double q = std::floor(static_cast<double>(x) * inv_size_);
+  // Monotone in x: a rounded subtraction of a constant, a product by a positive constant, floor.
+  int64_t CellOf(Coord x, size_t axis) const {
+    double q = std::floor((static_cast<double>(x) - origin_[axis]) * inv_size_);
     if (!(q > -static_cast<double>(kLimit))) return -kLimit;
     if (q >= static_cast<double>(kLimit - 1)) return kLimit - 1;
     return static_cast<int64_t>(q);
   }
   void RangeOf(const BoxType& box, CellCoord* out_lo, CellCoord* out_hi) const {
     for (size_t a = 0; a < kAxes; ++a) {
-      (*out_lo)[a] = static_cast<typename Space::Scalar>(CellOf(box.lo[a]));
-      (*out_hi)[a] = static_cast<typename Space::Scalar>(CellOf(box.hi[a]));
+      (*out_lo)[a] = static_cast<typename Space::Scalar>(CellOf(box.lo[a], a));
+      (*out_hi)[a] = static_cast<typename Space::Scalar>(CellOf(box.hi[a], a));
     }
   }
   // Cells in a range, saturated just above the large-object threshold.
@@ -300,10 +311,15 @@ class GridCore {
 
   // --- automatic cell size --------------------------------------------------------------------
 
+  struct Sizing {
+    double size;                       // the ideal cell size
+    std::array<double, kAxes> middle;  // the middle of the box centres' bounds
+  };
+
   // About objects_per_cell objects per cell over the bounds of the box centres; never below the
   // median box extent, so typical objects cover a few cells at most.
   template <class ForEachBox>
-  double IdealCellSize(size_t n, ForEachBox&& each) {
+  Sizing IdealCellSize(size_t n, ForEachBox&& each) {
     std::array<double, kAxes> lo, hi;
     lo.fill(std::numeric_limits<double>::infinity());
     hi.fill(-std::numeric_limits<double>::infinity());
@@ -335,15 +351,20 @@ class GridCore {
                             std::log(static_cast<double>(std::max<size_t>(n, 1)))) /
                            static_cast<double>(kDim));
     size = std::max(size, median);
-    // Degenerate input (all points at one spot): no smaller than 2^-20 of the coordinates'
-    // magnitude (rather than a denormal size that clamps every later box into one edge cell).
+    // Degenerate input (all points at one spot): no smaller than 2^-20 of the centres' distance
+    // from their middle (the origin), rather than a denormal size that clamps every later box
+    // into one edge cell.
+    Sizing out{0, {}};
     double magnitude = 0;
     for (size_t a = 0; a < kAxes; ++a) {
-      magnitude = std::max({magnitude, std::fabs(lo[a]), std::fabs(hi[a])});
+      out.middle[a] = std::isfinite(lo[a]) ? lo[a] * 0.5 + hi[a] * 0.5 : 0.0;
+      if (!std::isfinite(out.middle[a])) out.middle[a] = 0;
+      magnitude = std::max({magnitude, hi[a] - out.middle[a], out.middle[a] - lo[a]});
     }
     double floor = magnitude > 0 && std::isfinite(magnitude) ? magnitude * 0x1p-20 : 1.0;
     if (!(size >= floor) || !std::isfinite(size)) size = floor;
-    return size;
+    out.size = size;
+    return out;
   }
 
   // Sizes again when the live count has changed fourfold since the size was chosen; rebuilds
@@ -352,12 +373,12 @@ class GridCore {
     if (options_.cell_size > 0) return;
     if (live_ < 64 || (live_ <= 4 * sized_for_ && 4 * live_ >= sized_for_)) return;
     sized_for_ = live_;
-    double ideal = IdealCellSize(live_, [&](auto&& f) {
+    Sizing ideal = IdealCellSize(live_, [&](auto&& f) {
       for (uint32_t h = 0; h < objects_.size(); ++h) {
         if (objects_[h].state == State::kLive) f(objects_[h].box);
       }
     });
-    if (ideal > 0.5 * cell_size_ && ideal < 2 * cell_size_) return;
+    if (ideal.size > 0.5 * cell_size_ && ideal.size < 2 * cell_size_) return;
     Regrid(ideal);
   }
 
@@ -834,7 +855,7 @@ class GridCore {
 
   // Rebuilds every cell with a new cell size once the query's changes are applied. The overlap
   // set does not change, so the tracker is kept; only the witness counts are recounted.
-  void Regrid(double size) {
+  void Regrid(const Sizing& sizing) {
     rebuilt_ = true;
     cells_.clear();
     free_cells_.clear();
@@ -847,7 +868,7 @@ class GridCore {
     refs_.clear();
     for (auto& list : free_refs_) list.clear();
     extra_.Clear();
-    SetCellSize(size);
+    SetCellSize(sizing.size, sizing.middle);
     recount_ = true;
     for (uint32_t h = 0; h < objects_.size(); ++h) {
       Object& o = objects_[h];
@@ -896,7 +917,9 @@ class GridCore {
   Options options_;
   std::unique_ptr<WorkerPool> pool_;  // when threads > 1
   double cell_size_ = 0;
-  double inv_size_ = 0;  // 0 until the size is chosen
+  double inv_size_ = 0;                 // 0 until the size is chosen
+  std::array<double, kAxes> origin_{};  // cell (0, ..., 0) starts here
+  bool placed_ = false;                 // the origin is chosen (at the first inserts)
   size_t sized_for_ = 0;
   size_t live_ = 0;
   std::vector<Object> objects_;

@@ -87,7 +87,9 @@ class SceneRunner {
   static double Ms(Clock::time_point start) {
     return std::chrono::duration<double, std::milli>(Clock::now() - start).count();
   }
-  Box<K, T> Convert(const SceneBox& b) const { return ToBox<K, T>(b, scene_.grid()); }
+  Box<K, T> Convert(const SceneBox& b) const {
+    return ToBox<K, T>(b, scene_.grid(), scene_.params().offset);
+  }
   ObjectOptions Options(const SceneBox& b) const {
     ObjectOptions o;
     o.is_static = static_rest_ && !b.moves;

@@ -41,17 +41,44 @@ class Xoshiro256 {
   std::array<uint64_t, 4> s_{};
 };
 
+/// The scene's layout. kUniform is WORKLOADS.md's scene, bit-exact (the golden values hold only
+/// for it); the others are the scenes "where uniform grids suffer" of WORKLOADS.md's last list,
+/// built from the same generator:
+///  - kClustered: slot i with i % 10 != 9 (cluster_fraction 0.9 of the slots) lives and bounces
+///    in a cube of cluster_volume (1%) of the environment at its centre; the rest are uniform.
+///  - kMixed: each object draws its width log-uniformly in [min_width, max_width] cube widths
+///    (1e-3 to 1e3) when it is placed, and moves at speed_fraction of its own width; the side
+///    keeps the volumetric density (the mean of width^dim replaces w^dim). Both corners are
+///    snapped, so widths below the snap grid become points, as they would in float.
+///  - kFast: moving slot i with i % 10 == 0 moves fast_speed (25) cube widths per frame, which
+///    crosses several cells of any grid sized for these densities; the rest as uniform.
+enum class Shape : uint8_t { kUniform, kClustered, kMixed, kFast };
+
 /// The scene's parameters (WORKLOADS.md, "Parameters").
 struct SceneParams {
-  int dim = 3;                  ///< 3, or 2 for the planar variant
-  uint32_t n = 10000;           ///< live objects
-  uint32_t moving = 1000;       ///< moving slots (slots 0..moving-1)
-  uint32_t churn = 50;          ///< removals (= insertions) per frame
-  double density = 0.05;        ///< volumetric density
-  double width = 1.0;           ///< cube width w
-  double speed_fraction = 0.1;  ///< speed as a fraction of w
-  uint64_t seed = 12345;        ///< random seed
+  int dim = 3;                    ///< 3, or 2 for the planar variant
+  uint32_t n = 10000;             ///< live objects
+  uint32_t moving = 1000;         ///< moving slots (slots 0..moving-1)
+  uint32_t churn = 50;            ///< removals (= insertions) per frame
+  double density = 0.05;          ///< volumetric density
+  double width = 1.0;             ///< cube width w
+  double speed_fraction = 0.1;    ///< speed as a fraction of w
+  uint64_t seed = 12345;          ///< random seed
+  Shape shape = Shape::kUniform;  ///< the layout (see Shape)
+  double cluster_fraction = 0.9;  ///< kClustered: share of the slots in the cluster (in tenths)
+  double cluster_volume = 0.01;   ///< kClustered: the cluster's share of the environment
+  double min_width = 1e-3;        ///< kMixed: smallest width, in cube widths
+  double max_width = 1e3;         ///< kMixed: largest width, in cube widths
+  double fast_speed = 25;         ///< kFast: speed of the fast movers, cube widths per frame
+  /// Added to every coordinate when a box is converted to an engine box (ToBox), in the engine's
+  /// coordinate type: a world far from the origin. Floating-point coordinates only.
+  double offset = 0;
 };
+
+/// "uniform", "clustered", "mixed" or "fast".
+const char* ShapeName(Shape shape);
+/// The shape named name; false if there is none.
+bool ParseShape(const char* name, Shape* shape);
 
 /// One box of the scene: an id and float corners; axes >= dim have lo = 0, hi = w.
 struct SceneBox {
@@ -98,15 +125,24 @@ class Scene {
     uint64_t id = 0;
     std::array<double, 3> p{};
     std::array<double, 3> v{};
+    double w = 0;  // its width (kMixed draws one per placement)
   };
-  void RandomPosition(Slot& slot);
-  void RandomVelocity(Slot& slot);
+  // The cube a slot lives and bounces in: p[a] in [base, base + lim].
+  struct Region {
+    double base = 0, lim = 0;
+  };
+  Region RegionOf(uint32_t slot_index) const;
+  double SpeedOf(uint32_t slot_index, const Slot& slot) const;
+  void RandomPosition(uint32_t slot_index, Slot& slot);
+  void RandomVelocity(uint32_t slot_index, Slot& slot);
   SceneBox BoxOf(const Slot& slot) const;
+  static void Bounce(Slot& slot, double base, double lim, std::size_t dim);
   float Snap(double x) const;
 
   SceneParams params_;
   Xoshiro256 rng_;
   double side_ = 0, lim_ = 0, speed_ = 0, grid_ = 0, inv_grid_ = 0;
+  Region cluster_;  // kClustered: the cluster's cube
   uint64_t next_id_ = 0;
   std::vector<Slot> slots_;
   std::vector<SceneBox> initial_;
@@ -114,14 +150,19 @@ class Scene {
 };
 
 /// Converts a scene box to an engine box with K = dim axes: float and double take the float
-/// value; an integer type takes coordinate / grid, which is exact (invariant 1).
+/// value plus offset, added in T (so rounded as an engine of T would see it); an integer type
+/// takes coordinate / grid, which is exact (invariant 1), and must have offset 0.
 template <int K, Coordinate T>
-Box<K, T> ToBox(const SceneBox& box, double grid) {
+Box<K, T> ToBox(const SceneBox& box, double grid, double offset = 0) {
   Box<K, T> out;
   for (std::size_t a = 0; a < static_cast<std::size_t>(K); ++a) {
     if constexpr (std::is_floating_point_v<T>) {
       out.lo[a] = static_cast<T>(box.lo[a]);
       out.hi[a] = static_cast<T>(box.hi[a]);
+      if (offset != 0) {
+        out.lo[a] += static_cast<T>(offset);
+        out.hi[a] += static_cast<T>(offset);
+      }
     } else {
       out.lo[a] = static_cast<T>(std::llround(static_cast<double>(box.lo[a]) / grid));
       out.hi[a] = static_cast<T>(std::llround(static_cast<double>(box.hi[a]) / grid));
