@@ -59,6 +59,7 @@ struct Config {
   double margin = 0;              // fattened boxes' margin in cube widths (0: exact)
   bool static_rest = false;       // resting slots' objects inserted static
   bool error_vs_double = false;   // float engine; errors counted against a double engine
+  bool compare_exact = false;     // count errors against an exact engine even at margin 0
   std::string shape = "uniform";  // the scene's layout (bp::workload::Shape)
   double offset = 0;              // added to every coordinate (a world far from the origin)
   uint32_t octree_capacity = bp::DynamicOctreeOptions().max_objects_per_node;
@@ -230,7 +231,7 @@ template <int K, class T, class TE = T>
 Result RunTyped(const SceneParams& params, int frames, const Config& cfg,
                 const std::string& label) {
   Result r;
-  const bool fat = cfg.margin > 0 || cfg.error_vs_double;
+  const bool fat = cfg.margin > 0 || cfg.error_vs_double || cfg.compare_exact;
   for (int rep = 0; rep < cfg.repeats; ++rep) {
     auto engine = MakeEngine<K, T>(cfg, static_cast<T>(cfg.margin));
     AddStaticBoxes<K, T>(cfg, params, engine.get());
@@ -356,7 +357,7 @@ void PrintJson(const std::string& scenario, const SceneParams& p, int frames, co
   if (cfg.static_rest) o << ",\"static_rest\":true";
   if (cfg.shape != "uniform") o << ",\"shape\":\"" << cfg.shape << "\"";
   if (cfg.offset != 0) o << ",\"offset\":" << cfg.offset;
-  if (cfg.margin > 0 || cfg.error_vs_double) {
+  if (cfg.margin > 0 || cfg.error_vs_double || cfg.compare_exact) {
     if (cfg.error_vs_double) o << ",\"error_vs\":\"double\"";
     const double ef = static_cast<double>(std::max<uint64_t>(r.error_frames, 1));
     o << ",\"margin\":" << cfg.margin
@@ -542,7 +543,8 @@ void GridFigure(int figure, const Config& base) {
   }
   const std::string scenario = "fig" + std::to_string(figure);
   for (const SceneParams& p : points) {
-    for (const char* engine : {"grid_segmented_sap", "grid_batch_sap", "dynamic_octree"}) {
+    for (const char* engine :
+         {"grid_segmented_sap", "grid_batch_sap", "grid_dense", "dynamic_octree"}) {
       Config cfg = base;
       cfg.engine = engine;
       cfg.variant = engine;
@@ -829,6 +831,7 @@ int main(int argc, char** argv) {
     for (double margin : margin_sweep) {
       Config run_cfg = cfg;
       run_cfg.margin = margin;
+      run_cfg.compare_exact = margin_sweep.size() > 1;  // the sweep's exact point is measured too
       Result r = Run(g->Params(), frames, run_cfg, name + " " + cfg.engine);
       PrintJson(name, g->Params(), frames, run_cfg, r, GoldenScene(run_cfg) ? g : nullptr, "");
       if (margin == 0)

@@ -42,7 +42,7 @@ inline constexpr std::array<std::string_view, 7> kLogLevels{"trace", "debug",   
 
 /// The `engine` section: which broadphase the daemon runs.
 struct EngineConfig {
-  std::string algorithm = "grid_segmented_sap";        ///< one of kAlgorithms
+  std::string algorithm = "grid_dense";                ///< one of kAlgorithms
   int dimension = 3;                                   ///< 2 or 3
   CoordinateType coordinate = CoordinateType::kFloat;  ///< yaml: float | double | int32
   std::optional<double> cell_size;  ///< yaml: "auto" (nullopt, default) or a positive finite number

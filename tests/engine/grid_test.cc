@@ -165,6 +165,19 @@ TEST(Grid, FarFromTheOriginDouble) {
   }
 }
 
+// Cells are counted from an origin at the middle of the first objects, so a world far from zero
+// gets the cells it would get at zero (it used to get one cell per 2^-20 of the coordinates'
+// magnitude: a single cell at 1e12), and stays exact.
+TEST(Grid, FarWorldKeepsSmallAutomaticCells) {
+  for (double origin : {0.0, 1e12, -1e12}) {
+    GridDense<3, double> engine;
+    RandomScene<3, double>(&engine, origin, 1.0, 11);
+    const Stats stats = engine.GetStats();
+    EXPECT_GT(stats.cell_size, 0.5) << origin;
+    EXPECT_LT(stats.cell_size, 16.0) << origin;
+  }
+}
+
 TEST(Grid, IntegerExtremes) {
   GridSegmentedSapOptions options;
   options.cell_size = 3;

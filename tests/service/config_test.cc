@@ -102,7 +102,7 @@ class TempDir {
 
 TEST(ConfigDefaults, MatchTheDocumentedValues) {
   Config c;
-  EXPECT_EQ(c.engine.algorithm, "grid_segmented_sap");
+  EXPECT_EQ(c.engine.algorithm, "grid_dense");
   EXPECT_EQ(c.engine.dimension, 3);
   EXPECT_EQ(c.engine.coordinate, CoordinateType::kFloat);
   EXPECT_FALSE(c.engine.cell_size.has_value());
@@ -674,7 +674,7 @@ TEST(ConfigToYamlTest, RoundTripsANonDefaultConfig) {
 TEST(ConfigToYamlTest, WritesEveryKeyPlainWhereUnambiguous) {
   std::string yaml = ConfigToYaml(Config());
   for (const char* line :
-       {"engine:\n", "  algorithm: grid_segmented_sap\n", "  cell_size: auto\n", "  margin: 0.0\n",
+       {"engine:\n", "  algorithm: grid_dense\n", "  cell_size: auto\n", "  margin: 0.0\n",
         "  partition: \"\"\n", "  topics:\n", "    events: bp_events\n", "  tick_ms: 16.667\n",
         "  max_batch_bytes: 67108864\n", "  summary_interval_s: 5.0\n", "  file: \"\"\n"}) {
     EXPECT_TRUE(Contains(yaml, line)) << line << "---\n" << yaml;
