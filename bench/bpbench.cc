@@ -301,7 +301,7 @@ SceneParams Shaped(SceneParams p, const Config& cfg) {
 // The golden values hold only for WORKLOADS.md's own scene.
 bool GoldenScene(const Config& cfg) {
   return cfg.margin == 0 && !cfg.static_rest && cfg.shape == "uniform" && cfg.offset == 0 &&
-         !cfg.error_vs_double;
+         !cfg.error_vs_double && !cfg.world_box && cfg.big_boxes == 0;
 }
 
 Result Run(const SceneParams& scenario, int frames, const Config& cfg, const std::string& label) {
@@ -767,6 +767,15 @@ int main(int argc, char** argv) {
   }
   std::vector<const bp::bench::PeerInfo*> peers;
   if (!SelectPeers(peer_list, &peers)) return 2;
+  // Peers get the scene's own boxes, exact: refuse what would make our line a different scene.
+  if (!peers.empty() && (cfg.world_box || cfg.big_boxes != 0 || cfg.static_rest || cfg.margin > 0 ||
+                         cfg.error_vs_double)) {
+    std::fprintf(stderr,
+                 "bpbench: --peers compares exact sets of the plain scene: not with --world-box, "
+                 "--big-boxes, --static-rest, --margin or --error-vs-double (a --margin-sweep "
+                 "compares at its 0 point)\n");
+    return 2;
+  }
   cfg.progress = isatty(STDERR_FILENO) != 0;
   if ((cfg.margin > 0 || !margin_sweep.empty()) && cfg.coord == "int32") {
     std::fprintf(stderr, "bpbench: --margin needs float or double coordinates\n");
@@ -785,6 +794,11 @@ int main(int argc, char** argv) {
     return 2;
   }
   if (margin_sweep.empty()) margin_sweep.push_back(cfg.margin);
+  if (!peers.empty() &&
+      std::find(margin_sweep.begin(), margin_sweep.end(), 0.0) == margin_sweep.end()) {
+    std::fprintf(stderr, "bpbench: --peers with --margin-sweep needs 0 in the sweep\n");
+    return 2;
+  }
 
   if (sweep) {
     ThresholdSweep(cfg, sweep_sizes);

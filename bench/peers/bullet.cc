@@ -1,6 +1,8 @@
 // Bullet 3 (Debian's libbullet-dev, single precision) as a bpbench peer: btDbvtBroadphase (two
 // dynamic AABB trees with fattened boxes) and bt32BitAxisSweep3 (incremental sweep and prune over
-// quantised coordinates), each with its default hashed pair cache. Refresh is
+// quantised coordinates), each with Bullet's defaults: the hashed pair cache, and for the axis
+// sweep its raycast accelerator (a btDbvtBroadphase kept up to date beside it), as a Bullet user
+// constructs them. Refresh is
 // calculateOverlappingPairs; the cache then holds every pair of overlapping fat or quantised
 // boxes, a superset of the exact set.
 #include <unordered_map>

@@ -38,9 +38,8 @@ class FclPeer final : public Peer {
     objects_[id] = std::move(obj);
   }
   void Update(uint64_t id, const PeerBox& box) override {
-    BoxObject* obj = objects_.at(id).get();
-    obj->SetBox(box);
-    moved_.push_back(obj);
+    objects_.at(id)->SetBox(box);
+    moved_.push_back(id);
   }
   void Erase(uint64_t id) override {
     auto it = objects_.find(id);
@@ -49,11 +48,12 @@ class FclPeer final : public Peer {
   }
   void Refresh() override {
     if (!moved_.empty()) {
-      // Erased objects may still be listed as moved: drop them first.
+      // Moved ids, looked up now: an object erased after its move is simply gone.
       std::vector<fcl::CollisionObjectd*> live;
       live.reserve(moved_.size());
-      for (fcl::CollisionObjectd* o : moved_) {
-        if (objects_.count(static_cast<BoxObject*>(o)->id()) != 0) live.push_back(o);
+      for (uint64_t id : moved_) {
+        auto it = objects_.find(id);
+        if (it != objects_.end()) live.push_back(it->second.get());
       }
       manager_.update(live);
       moved_.clear();
@@ -73,7 +73,7 @@ class FclPeer final : public Peer {
   std::shared_ptr<fcl::CollisionGeometryd> shape_;
   fcl::DynamicAABBTreeCollisionManagerd manager_;
   std::unordered_map<uint64_t, std::unique_ptr<BoxObject>> objects_;
-  std::vector<fcl::CollisionObjectd*> moved_;
+  std::vector<uint64_t> moved_;
   std::vector<std::pair<uint64_t, uint64_t>> pairs_;
 };
 

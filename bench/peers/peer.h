@@ -67,7 +67,7 @@ struct PeerRun {
   double build_ms = 0;              ///< first repeat: inserting frame 0 and the first Refresh
   uint64_t pairs0 = 0, pairs = 0, collides = 0, uncollides = 0, set_hash = 0, chain = 0;
   uint64_t candidates = 0;  ///< pairs the peer held, summed over the frames of the first repeat
-  uint64_t duplicates = 0;  ///< candidate pairs listed more than once (first repeat)
+  uint64_t duplicates = 0;  ///< candidate pairs listed more than once (frames 1.., first repeat)
 };
 
 /// Drives the peer through `frames` frames of the scene, `repeats` times, with the scene's boxes

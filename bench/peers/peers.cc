@@ -115,7 +115,7 @@ PeerRun RunTyped(const PeerInfo& info, const workload::SceneParams& params, int 
     if (rep == 0) r.build_ms = build;
     for (const workload::SceneBox& b : scene.Initial()) live[b.id] = convert(b);
     exact();
-    if (rep == 0) r.candidates = 0;  // per frame: frames 1.. only
+    if (rep == 0) r.candidates = r.duplicates = 0;  // per frame: frames 1.. only
     r.pairs0 = pairs.size();
     chain.AddFrame(set_hash);
     uint64_t collides = 0, uncollides = 0;

@@ -10,6 +10,22 @@ rm -rf "$out"
 mkdir -p "$out"
 json="$out/smoke.jsonl"
 
+# Every peer whose Debian package is installed must be in this build (scripts/setup installs all).
+peers="$("$bench" --peers list)"
+for pair in libbullet-dev:bullet_dbvt libbullet-dev:bullet_sap libfcl-dev:fcl_dynamic_tree \
+  libcgal-dev:cgal; do
+  pkg="${pair%%:*}" peer="${pair#*:}"
+  if [[ "$(dpkg-query -W -f='${db:Status-Status}' "$pkg" 2>/dev/null || true)" == installed ]] &&
+    ! grep -q "^$peer " <<<"$peers"; then
+    echo "bench smoke: $pkg is installed but bpbench has no $peer peer" >&2
+    exit 1
+  fi
+done
+if [[ "$peers" != *"no peer"* ]] && "$bench" -s S2a -r 1 -f 2 --peers all --world-box >/dev/null 2>&1; then
+  echo "bench smoke: --peers with --world-box should be refused" >&2
+  exit 1
+fi
+
 "$bench" -s S2a -e grid_dense -r 1 --peers all >"$json"
 "$bench" -s S1-10k -e grid_dense -r 1 -f 10 --shape clustered >>"$json"
 "$bench" -s S1-10k -e grid_segmented_sap -r 1 -f 10 --coord double --offset 1e12 >>"$json"
