@@ -364,8 +364,9 @@ TEST(SceneTest, FrameOpsShape) {
 }
 
 // The shapes of WORKLOADS.md's "scenes where uniform grids suffer" (Shape): what each promises.
-std::vector<SceneBox> ShapeFrames(const SceneParams& params, int frames, Scene* scene,
-                                  std::vector<SceneBox>* moved) {
+// The boxes a scene places in its first `frames` frames (initial and inserted); moved boxes
+// go to *moved.
+std::vector<SceneBox> ShapeFrames(int frames, Scene* scene, std::vector<SceneBox>* moved) {
   FrameOps ops;
   std::vector<SceneBox> all = scene->Initial();
   for (int f = 0; f < frames; ++f) {
@@ -373,7 +374,6 @@ std::vector<SceneBox> ShapeFrames(const SceneParams& params, int frames, Scene* 
     all.insert(all.end(), ops.inserts.begin(), ops.inserts.end());
     moved->insert(moved->end(), ops.updates.begin(), ops.updates.end());
   }
-  (void)params;
   return all;
 }
 
@@ -385,7 +385,7 @@ TEST(SceneShapes, ClusteredKeepsNineTenthsInOnePercentOfTheVolume) {
   p.shape = Shape::kClustered;
   Scene scene(p);
   std::vector<SceneBox> moved;
-  std::vector<SceneBox> placed = ShapeFrames(p, 30, &scene, &moved);
+  std::vector<SceneBox> placed = ShapeFrames(30, &scene, &moved);
   const double side = scene.side(), cluster = side * std::cbrt(0.01);
   const double base = (side - cluster) / 2;
   auto inside = [&](const SceneBox& b) {
@@ -413,7 +413,7 @@ TEST(SceneShapes, MixedSpansSixDecadesOfWidth) {
   p.shape = Shape::kMixed;
   Scene scene(p);
   std::vector<SceneBox> moved;
-  std::vector<SceneBox> placed = ShapeFrames(p, 5, &scene, &moved);
+  std::vector<SceneBox> placed = ShapeFrames(5, &scene, &moved);
   std::array<int, 8> decades{};
   size_t points = 0;
   for (const SceneBox& b : placed) {

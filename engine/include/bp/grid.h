@@ -357,8 +357,8 @@ class GridCore {
     Sizing out{0, {}};
     double magnitude = 0;
     for (size_t a = 0; a < kAxes; ++a) {
-      out.middle[a] = std::isfinite(lo[a]) ? lo[a] * 0.5 + hi[a] * 0.5 : 0.0;
-      if (!std::isfinite(out.middle[a])) out.middle[a] = 0;
+      const double middle = lo[a] * 0.5 + hi[a] * 0.5;  // not finite without finite centres
+      out.middle[a] = std::isfinite(middle) ? middle : 0.0;
       magnitude = std::max({magnitude, hi[a] - out.middle[a], out.middle[a] - lo[a]});
     }
     double floor = magnitude > 0 && std::isfinite(magnitude) ? magnitude * 0x1p-20 : 1.0;
