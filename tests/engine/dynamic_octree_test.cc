@@ -187,6 +187,26 @@ TEST(DynamicOctree, FirstBatchIsAGiantBox) {
 // Overflow objects whose tree empties: the next root may hold them (a root fitted to a giant
 // box spans all doubles), so they must leave the overflow list (Validate checks it after every
 // query). The root comes from a batch of inserts, or from one box moved out of the overflow list.
+// Found by fuzz_update_batch: a first batch whose boxes reach -1.9e289 on one axis and sit
+// near the origin on the other. The root fitted to the batch is far wider than the small boxes.
+TEST(DynamicOctree, FirstBatchFromTheFuzzer) {
+  Lockstep<2, double> s;
+  const double boxes[][4] = {{0, 1, 2, 3},    {9, 10, 11, 12},  {4, 5, 6, 7},
+                             {9, 10, 11, 12}, {7, 8, 9, 10},    {1, -1.94906280228e+289, 3, 4},
+                             {1, 2, 3, 4},    {11, 12, 13, 14}, {9, 10, 11, 12},
+                             {6, 7, 8, 9},    {11, 12, 13, 14}, {1, 2, 3, 4},
+                             {5, 6, 7, 8},    {2, 3, 4, 5},     {-2684354560, 8, 9, 10},
+                             {1, 2, 3, 4},    {10, 11, 12, 13}};
+  uint64_t key = 1;
+  for (const auto& v : boxes) {
+    Box<2, double> b;
+    b.lo = {v[0], v[1]};
+    b.hi = {v[2], v[3]};
+    s.Insert(key++, b);
+  }
+  s.Query();
+}
+
 TEST(DynamicOctree, NewRootAdoptsOverflowObjects) {
   using L = std::numeric_limits<double>;
   for (bool from_batch : {true, false}) {

@@ -399,6 +399,12 @@ void DynamicOctreeCore<K, T>::CreateRoot(Bounds lo, Bounds hi) {
   }
   side = std::max(side, std::ldexp(magnitude, -20));
   if (!(side > 0)) side = 1;
+  // lo + side rounds: widen side until the root reaches hi on every axis (found by the fuzzer:
+  // lo = -1.9e289 and hi = 14 gave a root ending at 0).
+  for (size_t a = 0; a < kAxes; ++a) {
+    while (lo[a] + side < hi[a])
+      side = std::nextafter(side, std::numeric_limits<double>::infinity());
+  }
   root_ = NewNode();
   Node& r = nodes_[root_];
   for (size_t a = 0; a < kAxes; ++a) {
@@ -478,6 +484,16 @@ template <int K, Coordinate T>
 void DynamicOctreeCore<K, T>::Insert(uint32_t h) {
   const Box<K, T>& b = boxes_[h];
   if (root_ == kNone) {
+    Bounds lo, hi;
+    for (size_t a = 0; a < kAxes; ++a) lo[a] = ToBound(b.lo[a]), hi[a] = ToBound(b.hi[a]);
+    CreateRoot(lo, hi);
+    AdoptOverflow();
+  }
+  if (!Contains(nodes_[root_], b) && nodes_[root_].count == 0 && !nodes_[root_].split) {
+    // An empty root (fitted to boxes that all went elsewhere): refit it instead of nesting an
+    // empty subtree under a grown root.
+    FreeNode(root_);
+    root_ = kNone;
     Bounds lo, hi;
     for (size_t a = 0; a < kAxes; ++a) lo[a] = ToBound(b.lo[a]), hi[a] = ToBound(b.hi[a]);
     CreateRoot(lo, hi);
