@@ -29,7 +29,7 @@ constexpr std::array<std::string_view, 6> kEngineKeys{"algorithm", "dimension", 
 constexpr std::array<std::string_view, 7> kDdsKeys{
     "domain",           "cyclone_config", "partition",   "topics",
     "write_timeout_ms", "event_history",  "update_queue"};
-constexpr std::array<std::string_view, 3> kTopicKeys{"updates", "events", "status"};
+constexpr std::array<std::string_view, 4> kTopicKeys{"updates", "events", "status", "requests"};
 constexpr std::array<std::string_view, 2> kFramesKeys{"boundary", "tick_ms"};
 constexpr std::array<std::string_view, 5> kLimitsKeys{"max_batch_bytes", "max_batch_items",
                                                       "max_objects", "max_pairs_per_event_batch",
@@ -121,6 +121,7 @@ void ReadDds(YamlReader& r, const Field& section, DdsConfig* d) {
         if (topic == "updates") ReadTopicName(r, t, &d->topics.updates);
         if (topic == "events") ReadTopicName(r, t, &d->topics.events);
         if (topic == "status") ReadTopicName(r, t, &d->topics.status);
+        if (topic == "requests") ReadTopicName(r, t, &d->topics.requests);
       });
     } else if (name == "write_timeout_ms") {
       r.ReadInt(v, 1, kMaxWriteTimeoutMs, &d->write_timeout_ms);
@@ -217,10 +218,11 @@ void CheckCrossKeys(YamlReader& r, Config* c) {
     r.Warning(*tick_mark, "frames.tick_ms",
               "ignored while frames.boundary is end_of_frame (used only with tick)");
   }
-  const std::array<std::pair<std::string, const std::string*>, 3> topics{{
+  const std::array<std::pair<std::string, const std::string*>, 4> topics{{
       {"dds.topics.updates", &c->dds.topics.updates},
       {"dds.topics.events", &c->dds.topics.events},
       {"dds.topics.status", &c->dds.topics.status},
+      {"dds.topics.requests", &c->dds.topics.requests},
   }};
   for (size_t j = 1; j < topics.size(); ++j) {
     for (size_t i = 0; i < j; ++i) {
@@ -387,6 +389,7 @@ std::string ConfigToYaml(const Config& c) {
   line(k2, "updates", YamlString(c.dds.topics.updates));
   line(k2, "events", YamlString(c.dds.topics.events));
   line(k2, "status", YamlString(c.dds.topics.status));
+  line(k2, "requests", YamlString(c.dds.topics.requests));
   line(k1, "write_timeout_ms", std::to_string(c.dds.write_timeout_ms));
   line(k1, "event_history", std::to_string(c.dds.event_history));
   line(k1, "update_queue", std::to_string(c.dds.update_queue));

@@ -55,9 +55,10 @@ struct EngineConfig {
 
 /// The DDS topic names (`dds.topics`).
 struct TopicsConfig {
-  std::string updates = "bp_updates";  ///< update batches in
-  std::string events = "bp_events";    ///< event batches out
-  std::string status = "bp_status";    ///< daemon status out
+  std::string updates = "bp_updates";    ///< update batches in
+  std::string events = "bp_events";      ///< event batches out
+  std::string status = "bp_status";      ///< daemon status out
+  std::string requests = "bp_requests";  ///< snapshot requests in
 
   /// Member-wise equality.
   bool operator==(const TopicsConfig&) const = default;

@@ -1,6 +1,7 @@
 #include "daemon.h"
 
 #include <algorithm>
+#include <random>
 
 #include "percentile.h"
 #include <spdlog/spdlog.h>
@@ -34,7 +35,8 @@ Status Daemon::Create(const Config& config, std::unique_ptr<Daemon>* out) {
   client::ConnectionOptions options;
   options.domain = config.dds.domain;
   options.partition = config.dds.partition;
-  options.topics = {config.dds.topics.updates, config.dds.topics.events, config.dds.topics.status};
+  options.topics = {config.dds.topics.updates, config.dds.topics.events, config.dds.topics.status,
+                    config.dds.topics.requests};
   if (!config.dds.cyclone_config.empty()) {
     if (Status s = client::ReadTextFile(config.dds.cyclone_config, &options.cyclone_xml); !s.ok()) {
       return Status(s.code(), "dds.cyclone_config: " + s.message());
@@ -48,6 +50,8 @@ Status Daemon::Create(const Config& config, std::unique_ptr<Daemon>* out) {
   client::qos::EventsWriter(events_qos.get(), config.dds.event_history, timeout);
   dds::Qos status_qos;
   client::qos::StatusWriter(status_qos.get(), timeout);
+  dds::Qos requests_qos;
+  client::qos::RequestsReader(requests_qos.get());
   auto& participant = d->connection_->participant();
   if (Status s = dds::Reader::Create(participant, d->connection_->updates_topic(), updates_qos,
                                      &d->updates_);
@@ -64,8 +68,16 @@ Status Daemon::Create(const Config& config, std::unique_ptr<Daemon>* out) {
       !s.ok()) {
     return s;
   }
+  if (Status s = dds::Reader::Create(participant, d->connection_->requests_topic(), requests_qos,
+                                     &d->requests_);
+      !s.ok()) {
+    return s;
+  }
   if (Status s = dds::WaitSet::Create(participant, &d->waitset_); !s.ok()) return s;
   if (Status s = d->waitset_.Attach(d->updates_); !s.ok()) return s;
+  if (Status s = d->waitset_.Attach(d->requests_); !s.ok()) return s;
+  std::random_device random;
+  while (d->epoch_ == 0) d->epoch_ = uint64_t{random()} << 32 | random();
   *out = std::move(d);
   return Status::Ok();
 }
@@ -114,6 +126,7 @@ Status Daemon::Run() {
     // At most one queue's worth per turn: under sustained load the queue never empties, and
     // ticks, summaries and a stop request must still get their turn.
     Drain(drain_rounds, /*until_stop=*/true);
+    ServeRequests();
     if (tick_mode && Clock::now() >= next_tick) {
       RunFrame(0, 0, 0);
       next_tick += tick;
@@ -282,20 +295,7 @@ void Daemon::RunFrame(uint32_t source_producer, uint64_t source_frame, uint64_t 
     event_msg_.set_source_sent_time_ns(source_sent_ns);
     event_msg_.set_objects(host_->Objects());
     event_msg_.set_overlaps(host_->Overlaps());
-    event_msg_.set_published_time_ns(client::WallClockNs());
-    buffer_.clear();
-    Status s = event_msg_.SerializeToString(&buffer_)
-                   ? events_.Write(event_msg_.sequence(), buffer_)
-                   : Status(StatusCode::kResourceExhausted,
-                            "the part does not serialise (over 2 GiB?); lower "
-                            "limits.max_pairs_per_event_batch");
-    if (!s.ok()) {
-      ++event_write_failures_;
-      spdlog::error(
-          "frame {} part {}: events not delivered ({}); subscribers see a gap at "
-          "sequence {}",
-          frame, part, s.ToString(), event_msg_.sequence());
-    }
+    WriteEventPart();
   }
   frames_.store(frame);
   frame_dirty_ = false;
@@ -307,6 +307,75 @@ void Daemon::RunFrame(uint32_t source_producer, uint64_t source_frame, uint64_t 
     frame_ms_.push_back(std::chrono::duration<double, std::milli>(frame_work_).count());
   }
   frame_work_ = std::chrono::nanoseconds(0);
+}
+
+void Daemon::WriteEventPart() {
+  event_msg_.set_epoch(epoch_);
+  event_msg_.set_published_time_ns(client::WallClockNs());
+  buffer_.clear();
+  Status s = event_msg_.SerializeToString(&buffer_)
+                 ? events_.Write(event_msg_.sequence(), buffer_)
+                 : Status(StatusCode::kResourceExhausted,
+                          "the part does not serialise (over 2 GiB?); lower "
+                          "limits.max_pairs_per_event_batch");
+  if (!s.ok()) {
+    ++event_write_failures_;
+    spdlog::error("frame {} {}part {}: not delivered ({}); subscribers see a gap at sequence {}",
+                  event_msg_.frame(), event_msg_.snapshot() ? "snapshot " : "", event_msg_.part(),
+                  s.ToString(), event_msg_.sequence());
+  }
+}
+
+void Daemon::ServeRequests() {
+  size_t valid = 0;
+  for (;;) {
+    size_t taken = 0;
+    Status s = requests_.Take(
+        kTakeBatch,
+        [&](const dds::Received& r) {
+          if (!request_.ParseFromArray(r.payload.data(), static_cast<int>(r.payload.size())) ||
+              request_.version() != wire::SCHEMA_VERSION_1) {
+            spdlog::warn("ignored a snapshot request that does not parse as version 1 ({} bytes)",
+                         r.payload.size());
+            return;
+          }
+          spdlog::debug("snapshot requested by {:016x} ({})", request_.requester(),
+                        request_.reason());
+          ++valid;
+        },
+        &taken);
+    if (!s.ok()) {
+      spdlog::error("reading snapshot requests: {}", s.ToString());
+      break;
+    }
+    if (taken == 0) break;
+  }
+  if (valid > 0) PublishSnapshot();  // one snapshot serves every request so far
+}
+
+void Daemon::PublishSnapshot() {
+  host_->Snapshot(&snapshot_pairs_);
+  const size_t pairs = snapshot_pairs_.size();
+  const size_t per_part = static_cast<size_t>(config_.limits.max_pairs_per_event_batch);
+  const size_t parts = std::max<size_t>(1, (pairs + per_part - 1) / per_part);
+  for (size_t part = 0, next = 0; part < parts; ++part) {
+    event_msg_.Clear();
+    event_msg_.set_version(wire::SCHEMA_VERSION_1);
+    event_msg_.set_frame(frames_.load());
+    event_msg_.set_sequence(++event_seq_);
+    event_msg_.set_part(static_cast<uint32_t>(part));
+    event_msg_.set_last_part(part + 1 == parts);
+    event_msg_.set_snapshot(true);
+    for (const size_t end = std::min(pairs, next + per_part); next < end; ++next) {
+      event_msg_.add_collide(snapshot_pairs_[next].first);
+      event_msg_.add_collide(snapshot_pairs_[next].second);
+    }
+    event_msg_.set_objects(host_->Objects());
+    event_msg_.set_overlaps(host_->Overlaps());
+    WriteEventPart();
+  }
+  snapshots_published_.fetch_add(1);
+  spdlog::info("snapshot of frame {}: {} pairs in {} part(s)", frames_.load(), pairs, parts);
 }
 
 void Daemon::PublishStatus(wire::Health health, bool with_interval) {

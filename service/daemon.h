@@ -8,8 +8,12 @@
 // last frame), wait briefly for subscribers' acknowledgements, report STOPPING and return.
 //
 // Thread safety: Run() on one thread; RequestStop() and the counters from any thread.
-// Invariants: EventBatch.sequence increases by one per part written, also when a write failed,
-// so subscribers see every loss as a gap; a batch's valid items are applied even when others
+// Snapshot requests (requests topic) are served between frames: the complete overlap set as of
+// the last frame, as snapshot parts on the events topic, in the same sequence as the events.
+//
+// Invariants: EventBatch.sequence increases by one per part written (events and snapshots),
+// also when a write failed, so subscribers see every loss as a gap; every part carries the
+// run's random epoch; a batch's valid items are applied even when others
 // are rejected; no input makes Run() fail (only DDS failures do).
 #pragma once
 
@@ -45,6 +49,10 @@ class Daemon {
   uint64_t frames() const { return frames_.load(); }
   /// Items rejected so far.
   uint64_t rejected() const { return rejected_total_.load(); }
+  /// Snapshots published so far.
+  uint64_t snapshots() const { return snapshots_published_.load(); }
+  /// This run's epoch (EventBatch.epoch).
+  uint64_t epoch() const { return epoch_; }
   /// Update batches received so far (malformed ones included).
   uint64_t batches() const { return batches_total_.load(); }
   /// True once Run() is serving (its readers and writers exist and SERVING was published).
@@ -58,6 +66,11 @@ class Daemon {
   // soon as a stop is requested.
   void Drain(size_t max_rounds, bool until_stop);
   void RunFrame(uint32_t source_producer, uint64_t source_frame, uint64_t source_sent_ns);
+  // Takes the snapshot requests that arrived; publishes one snapshot if any asked for it.
+  void ServeRequests();
+  void PublishSnapshot();
+  // Writes event_msg_ (sequence already set); a failure is counted and logged.
+  void WriteEventPart();
   void ReportRejection(uint32_t producer, const wire::UpdateBatch* batch, Reject&& reject);
   void FlushRejections();
   void PublishStatus(wire::Health health, bool with_interval);
@@ -69,6 +82,7 @@ class Daemon {
   dds::Reader updates_;
   dds::Writer events_;
   dds::Writer status_;
+  dds::Reader requests_;
   dds::WaitSet waitset_;
   std::string daemon_name_;
 
@@ -77,6 +91,7 @@ class Daemon {
   std::atomic<uint64_t> frames_{0};
   std::atomic<uint64_t> rejected_total_{0};
   std::atomic<uint64_t> batches_total_{0};
+  std::atomic<uint64_t> snapshots_published_{0};
 
   // Frame state.
   bool frame_dirty_ = false;  // a batch was applied since the last frame
@@ -85,6 +100,9 @@ class Daemon {
   uint64_t event_seq_ = 0;
   uint64_t status_seq_ = 0;
   uint64_t event_write_failures_ = 0;
+  uint64_t epoch_ = 0;  // random per start, on every event part
+  std::vector<std::pair<uint64_t, uint64_t>> snapshot_pairs_;
+  wire::SnapshotRequest request_;
   std::vector<uint64_t> uncollide_;
   std::vector<uint64_t> collide_;
   wire::UpdateBatch batch_;

@@ -1,5 +1,6 @@
 #include "engine_host.h"
 
+#include <algorithm>
 #include <cmath>
 #include <limits>
 #include <type_traits>
@@ -122,6 +123,14 @@ class TypedHost final : public EngineHost {
     engine_->Query(sink);
     overlaps_ += collide->size() / 2;
     overlaps_ -= uncollide->size() / 2;
+  }
+
+  void Snapshot(std::vector<std::pair<uint64_t, uint64_t>>* pairs) const override {
+    pairs->clear();
+    pairs->reserve(overlaps_);
+    engine_->ForEachOverlap(
+        [&](const uint64_t& a, const uint64_t& b) { pairs->emplace_back(a, b); });
+    std::sort(pairs->begin(), pairs->end());
   }
 
   uint64_t Objects() const override { return objects_; }

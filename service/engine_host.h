@@ -23,6 +23,7 @@
 #include <memory>
 #include <span>
 #include <string>
+#include <utility>
 #include <vector>
 
 #include "broadphase.pb.h"
@@ -72,6 +73,8 @@ class EngineHost {
   virtual uint64_t Objects() const = 0;
   /// Reported overlapping pairs as of the last query.
   virtual uint64_t Overlaps() const = 0;
+  /// Replaces pairs by every overlapping pair (a < b) as of the last query, sorted.
+  virtual void Snapshot(std::vector<std::pair<uint64_t, uint64_t>>* pairs) const = 0;
   /// The engine's counters.
   virtual Stats GetStats() const = 0;
   /// The engine's algorithm name.

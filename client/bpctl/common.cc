@@ -18,7 +18,7 @@ std::unique_ptr<client::Connection> Connect(const Common& common) {
   client::ConnectionOptions options;
   options.domain = dds.domain;
   options.partition = dds.partition;
-  options.topics = {dds.topics.updates, dds.topics.events, dds.topics.status};
+  options.topics = {dds.topics.updates, dds.topics.events, dds.topics.status, dds.topics.requests};
   if (!dds.cyclone_config.empty()) {
     if (Status s = client::ReadTextFile(dds.cyclone_config, &options.cyclone_xml); !s.ok()) {
       std::fprintf(stderr, "bpctl: dds.cyclone_config: %s\n", s.ToString().c_str());

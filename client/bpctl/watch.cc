@@ -64,6 +64,9 @@ int Watch(const Common& common, const WatchOptions& options) {
     }
     const uint64_t now_ns = client::WallClockNs();
     for (const auto& b : batches) {
+      // Snapshots (the whole overlap set, published when some subscriber asks for one) are
+      // not events: a line per event and the rates ignore them.
+      if (b.snapshot()) continue;
       if (!options.stats) {
         for (int i = 0; i + 1 < b.uncollide_size(); i += 2) {
           std::printf("%llu uncollide %s %s\n", static_cast<unsigned long long>(b.frame()),

@@ -46,6 +46,14 @@ void StatusReader(dds_qos_t* qos, int32_t depth) {
   dds_qset_durability(qos, DDS_DURABILITY_TRANSIENT_LOCAL);
   dds_qset_history(qos, DDS_HISTORY_KEEP_LAST, depth);
 }
+void RequestsWriter(dds_qos_t* qos) {
+  dds_qset_reliability(qos, DDS_RELIABILITY_RELIABLE, DDS_MSECS(100));
+  dds_qset_history(qos, DDS_HISTORY_KEEP_LAST, 4);
+}
+void RequestsReader(dds_qos_t* qos) {
+  dds_qset_reliability(qos, DDS_RELIABILITY_RELIABLE, DDS_SECS(1));
+  dds_qset_history(qos, DDS_HISTORY_KEEP_LAST, 64);
+}
 }  // namespace qos
 
 Status Connection::Open(const ConnectionOptions& options, std::unique_ptr<Connection>* out) {
@@ -63,6 +71,9 @@ Status Connection::Open(const ConnectionOptions& options, std::unique_ptr<Connec
     return s;
   }
   if (Status s = c->participant_->CreateTopic(options.topics.status, &c->status_); !s.ok()) {
+    return s;
+  }
+  if (Status s = c->participant_->CreateTopic(options.topics.requests, &c->requests_); !s.ok()) {
     return s;
   }
   *out = std::move(c);

@@ -223,7 +223,7 @@ const RuleCase kRuleCases[] = {
     {"MappingForString", "engine:\n  algorithm: {a: 1}\n",
      "cfg.yaml:2:14: engine.algorithm: expected a string, got a mapping"},
     {"MappingForTopics", "dds:\n  topics: [bp_a]\n",
-     "cfg.yaml:2:11: dds.topics: expected a mapping (keys: updates, events, status), got a "
+     "cfg.yaml:2:11: dds.topics: expected a mapping (keys: updates, events, status, requests), got a "
      "sequence"},
     {"EmptyString", "dds:\n  partition:\n",
      "cfg.yaml:2:3: dds.partition: expected a string, got no value (write \"\" for an empty "
@@ -650,7 +650,7 @@ TEST(ConfigToYamlTest, RoundTripsANonDefaultConfig) {
   c.dds.domain = 17;
   c.dds.cyclone_config = "/opt/my dds/cyclone: \"lan\".xml";
   c.dds.partition = "world #1 \\ 'quoted' \t tab, ünïcode";
-  c.dds.topics = {"a/updates", "B_events", "null"};
+  c.dds.topics = {"a/updates", "B_events", "null", "req_4"};
   c.dds.write_timeout_ms = 250;
   c.dds.event_history = 1000;
   c.dds.update_queue = 4096;
@@ -679,7 +679,7 @@ TEST(ConfigToYamlTest, WritesEveryKeyPlainWhereUnambiguous) {
         "  max_batch_bytes: 67108864\n", "  summary_interval_s: 5.0\n", "  file: \"\"\n"}) {
     EXPECT_TRUE(Contains(yaml, line)) << line << "---\n" << yaml;
   }
-  EXPECT_EQ(Lines(yaml).size(), 31u) << yaml;  // 5 sections + topics + 25 keys
+  EXPECT_EQ(Lines(yaml).size(), 32u) << yaml;  // 5 sections + topics + 26 keys
 }
 
 TEST(ConfigNames, AreCanonical) {

@@ -542,6 +542,114 @@ TEST(Daemon, DoublesToAFloatEngineRoundOutward) {
             std::string::npos);
 }
 
+// Drives an OverlapView from a subscriber until it is synced at `frame` (asking for a snapshot
+// when it wants one, and again every 500 ms while none arrives).
+bool SyncTo(client::EventSubscriber& sub, client::SnapshotRequester& requests,
+            client::OverlapView& view, uint64_t frame, std::chrono::milliseconds timeout = 15s) {
+  const auto deadline = std::chrono::steady_clock::now() + timeout;
+  auto asked = std::chrono::steady_clock::time_point{};
+  while (!(view.synced() && view.frame() == frame)) {
+    const auto now = std::chrono::steady_clock::now();
+    if (now > deadline) return false;
+    if (view.wants_snapshot() && now - asked > 500ms) {
+      EXPECT_TRUE(requests.Request("test").ok());
+      asked = now;
+    }
+    std::vector<wire::EventBatch> parts;
+    if (!sub.Poll(50ms, &parts).ok()) return false;
+    for (const auto& p : parts) {
+      if (view.Apply(p)) asked = {};  // lost: ask at once
+    }
+  }
+  return true;
+}
+
+// Issue 8: a subscriber that joins late, one that falls behind (KEEP_LAST 1 overwrites what it
+// does not read: a gap), and both across a daemon restart (a new epoch), each rebuild the exact
+// overlap set from a snapshot and keep it exact frame by frame. Snapshots are split into parts.
+TEST(Daemon, LateLaggingAndRestartedSubscribersResyncFromSnapshots) {
+  service::Config config = TestConfig(kDomain);
+  config.engine.algorithm = "grid_dense";
+  // Snapshots of several parts. A subscriber's depth must exceed a snapshot's part count, or
+  // its own history overwrites the snapshot while it arrives (docs/PROTOCOL.md).
+  config.limits.max_pairs_per_event_batch = 100;
+  auto daemon = std::make_unique<InProcessDaemon>(config);
+  Client client(config);
+  auto pub = client.Publisher(1);
+  Scene scene(SmallScene(11));
+  Oracle<3> oracle;
+  PairList unc, col;
+  FrameOps ops = InitialOps(scene);
+  uint64_t frame = 0;
+  auto step = [&] {
+    if (frame > 0) scene.NextFrame(&ops);
+    ++frame;
+    oracle.Apply(1, ops);
+    oracle.Query(&unc, &col);
+    PublishFrame(*pub, ops, 3, frame, 1);
+    FrameEvents got;
+    ASSERT_TRUE(client.events->WaitFrame(frame, &got));
+  };
+  for (int i = 0; i < 8; ++i) step();
+  ASSERT_GT(oracle.Pairs().size(), 100u) << "the snapshot should need several parts";
+  ASSERT_LE(oracle.Pairs().size(), 1000u) << "the lagging subscriber's depth must hold a snapshot";
+
+  // Two late joiners: one reads everything, one keeps only the newest 12 parts.
+  std::unique_ptr<client::Connection> connection;
+  BP_ASSERT_OK(client::Connection::Open(ClientOptions(config), &connection));
+  std::unique_ptr<client::EventSubscriber> eager, lagging;
+  BP_ASSERT_OK(client::EventSubscriber::Create(*connection, 1000, &eager));
+  BP_ASSERT_OK(client::EventSubscriber::Create(*connection, 12, &lagging));
+  std::unique_ptr<client::SnapshotRequester> requests;
+  BP_ASSERT_OK(client::SnapshotRequester::Create(*connection, &requests));
+  BP_ASSERT_OK(eager->WaitForDaemon(10s));
+  BP_ASSERT_OK(lagging->WaitForDaemon(10s));
+  BP_ASSERT_OK(requests->WaitForDaemon(10s));
+  client::OverlapView eager_view, lagging_view;
+  ASSERT_TRUE(SyncTo(*eager, *requests, eager_view, frame)) << eager_view.last_loss();
+  EXPECT_EQ(eager_view.SortedPairs(), oracle.Pairs());
+  ASSERT_TRUE(SyncTo(*lagging, *requests, lagging_view, frame)) << lagging_view.last_loss();
+  EXPECT_EQ(lagging_view.SortedPairs(), oracle.Pairs());
+
+  // Frame by frame: the eager view stays exact; the lagging one is not read meanwhile.
+  for (int i = 0; i < 15; ++i) {  // at least 15 parts: more than the lagging depth
+    step();
+    ASSERT_TRUE(SyncTo(*eager, *requests, eager_view, frame)) << eager_view.last_loss();
+    ASSERT_EQ(eager_view.SortedPairs(), oracle.Pairs()) << "frame " << frame;
+  }
+  EXPECT_EQ(eager_view.resyncs(), 0u);
+  ASSERT_TRUE(SyncTo(*lagging, *requests, lagging_view, frame)) << lagging_view.last_loss();
+  EXPECT_EQ(lagging_view.SortedPairs(), oracle.Pairs());
+  EXPECT_GE(lagging_view.gaps(), 1u) << "KEEP_LAST 12 must have overwritten parts";
+  EXPECT_GE(lagging_view.resyncs(), 1u);
+
+  // The daemon restarts (a new epoch, frames from 1 again); the producer sends its objects
+  // again as inserts of a fresh scene.
+  BP_ASSERT_OK(daemon->Stop());
+  const uint64_t old_epoch = eager_view.epoch();
+  daemon.reset();
+  daemon = std::make_unique<InProcessDaemon>(config);
+  Client client2(config);
+  auto pub2 = client2.Publisher(1);
+  Scene scene2(SmallScene(12));
+  Oracle<3> oracle2;
+  FrameOps ops2 = InitialOps(scene2);
+  for (uint64_t f = 1; f <= 3; ++f) {
+    if (f > 1) scene2.NextFrame(&ops2);
+    oracle2.Apply(1, ops2);
+    oracle2.Query(&unc, &col);
+    PublishFrame(*pub2, ops2, 3, f, 1);
+    FrameEvents got;
+    ASSERT_TRUE(client2.events->WaitFrame(f, &got));
+  }
+  ASSERT_TRUE(SyncTo(*eager, *requests, eager_view, 3)) << eager_view.last_loss();
+  EXPECT_EQ(eager_view.SortedPairs(), oracle2.Pairs());
+  EXPECT_NE(eager_view.epoch(), old_epoch);
+  EXPECT_EQ(eager_view.restarts(), 1u);
+  EXPECT_EQ(eager_view.contradictions(), 0u);
+  EXPECT_GE(daemon->daemon().snapshots(), 1u);
+}
+
 }  // namespace
 }  // namespace bp::test
 
@@ -588,7 +696,6 @@ TEST(Daemon, ASubscriberThatNeverReadsStallsNothing) {
   BP_ASSERT_OK(daemon.Stop());
   EXPECT_EQ(daemon.daemon().frames(), kFrames);
 }
-
 }  // namespace
 }  // namespace bp::test
 
@@ -628,6 +735,5 @@ TEST(Daemon, ClientLibraryRoundTripWithACallback) {
   sub->StopListening();
   sub->StopListening();  // idempotent
 }
-
 }  // namespace
 }  // namespace bp::test

@@ -4,6 +4,7 @@
 // and status reports, and the brute-force oracle with the daemon's global keys.
 #pragma once
 
+#include <algorithm>
 #include <chrono>
 #include <functional>
 #include <map>
@@ -22,6 +23,7 @@
 #include "bp/brute_force.h"
 #include "bp/client/batch_builder.h"
 #include "bp/client/connection.h"
+#include "bp/client/overlap_view.h"
 #include "bp/client/subscriber.h"
 #include "bp/client/update_publisher.h"
 
@@ -122,6 +124,7 @@ class EventCollector {
  private:
   void Add(const wire::EventBatch& b) {
     sequences_.push_back(b.sequence());
+    if (b.snapshot()) return;  // frames only (OverlapView takes snapshots)
     FrameEvents& f = partial_[b.frame()];
     f.frame = b.frame();
     EXPECT_EQ(b.part(), f.parts) << "parts of frame " << b.frame() << " out of order";
@@ -243,6 +246,13 @@ class Oracle {
     engine_.Query(sink);
   }
   size_t Size() const { return engine_.Size(); }
+  /// The overlapping pairs as of the last Query, sorted.
+  PairList Pairs() const {
+    PairList out;
+    engine_.ForEachOverlap([&](const uint64_t& a, const uint64_t& b) { out.emplace_back(a, b); });
+    std::sort(out.begin(), out.end());
+    return out;
+  }
 
  private:
   BruteForce<K, float, uint64_t> engine_;

@@ -9,6 +9,8 @@
 //    subscriber. A slow subscriber loses the oldest batches (it sees a gap in `sequence`)
 //    instead of growing memory or stalling the daemon.
 //  - status: reliable, TRANSIENT_LOCAL, KEEP_LAST 16: a late joiner gets the latest reports.
+//  - requests: reliable, KEEP_LAST (a few at the subscriber, 64 at the daemon): snapshot
+//    requests; one is enough, so losing older ones costs nothing.
 //
 // Thread safety: a Connection may be shared by publishers and subscribers on several threads.
 #pragma once
@@ -28,6 +30,7 @@ struct TopicNames {
   std::string updates = "bp_updates";
   std::string events = "bp_events";
   std::string status = "bp_status";
+  std::string requests = "bp_requests";
 };
 
 /// Where a deployment lives.
@@ -55,9 +58,13 @@ void EventsReader(dds_qos_t* qos, int32_t depth);
 void StatusWriter(dds_qos_t* qos, std::chrono::milliseconds write_timeout);
 /// Status topic, reader side.
 void StatusReader(dds_qos_t* qos, int32_t depth);
+/// Requests topic, writer side (subscribers asking for a snapshot).
+void RequestsWriter(dds_qos_t* qos);
+/// Requests topic, reader side (the daemon).
+void RequestsReader(dds_qos_t* qos);
 }  // namespace qos
 
-/// A participant and the three topics of a deployment.
+/// A participant and the four topics of a deployment.
 class Connection {
  public:
   /// Joins the deployment described by options.
@@ -67,6 +74,7 @@ class Connection {
   dds_entity_t updates_topic() const { return updates_; }
   dds_entity_t events_topic() const { return events_; }
   dds_entity_t status_topic() const { return status_; }
+  dds_entity_t requests_topic() const { return requests_; }
   const ConnectionOptions& options() const { return options_; }
 
  private:
@@ -76,6 +84,7 @@ class Connection {
   dds_entity_t updates_ = 0;
   dds_entity_t events_ = 0;
   dds_entity_t status_ = 0;
+  dds_entity_t requests_ = 0;
 };
 
 }  // namespace bp::client
