@@ -6,7 +6,8 @@
 // Each payload goes through exactly what the daemon does with a received sample: AdmitBatch (size,
 // protobuf decoding, version, producer, item count), then EngineHost::Apply, then a query. It is
 // applied to the chosen engine and to brute force, and the two must agree on everything: the
-// rejections (operation, index, id, reason), the counts, the live objects and the events.
+// rejections (operation, index, id, reason), the counts, the live objects, the events and the
+// snapshot of the overlap set.
 // Every item of an admitted batch must be counted exactly once, applied or rejected (nothing is
 // dropped silently), and every rejection must carry a reason and a message naming the item.
 // On a mismatch the target prints what differs and aborts, so libFuzzer saves the input.
@@ -17,6 +18,7 @@
 #include <memory>
 #include <span>
 #include <string>
+#include <utility>
 #include <vector>
 
 #include "engine_host.h"
@@ -74,6 +76,7 @@ extern "C" int LLVMFuzzerTestOneInput(const uint8_t* data, size_t size) {
   bp::wire::UpdateBatch batch;
   std::vector<Reject> rejects_host, rejects_oracle;
   std::vector<uint64_t> un_host, co_host, un_oracle, co_oracle;
+  std::vector<std::pair<uint64_t, uint64_t>> snap_host, snap_oracle;
   size_t at = 1;
   for (int record = 0; record < 16 && at < size; ++record) {
     size_t len = data[at];
@@ -133,6 +136,10 @@ extern "C" int LLVMFuzzerTestOneInput(const uint8_t* data, size_t size) {
     if (un_host != un_oracle) Fail(algorithm + ": uncollides differ from brute force");
     if (co_host != co_oracle) Fail(algorithm + ": collides differ from brute force");
     if (host->Overlaps() != oracle->Overlaps()) Fail("overlap counts differ from brute force");
+    host->Snapshot(&snap_host);
+    oracle->Snapshot(&snap_oracle);
+    if (snap_host != snap_oracle) Fail(algorithm + ": snapshot differs from brute force");
+    if (snap_host.size() != host->Overlaps()) Fail("snapshot size differs from the overlap count");
   }
   return 0;
 }
