@@ -327,8 +327,9 @@ void Daemon::WriteEventPart() {
 }
 
 void Daemon::ServeRequests() {
+  // One take per loop turn (bounded); requests beyond it wait for the next turn.
   size_t valid = 0;
-  for (;;) {
+  {
     size_t taken = 0;
     Status s = requests_.Take(
         kTakeBatch,
@@ -344,13 +345,10 @@ void Daemon::ServeRequests() {
           ++valid;
         },
         &taken);
-    if (!s.ok()) {
-      spdlog::error("reading snapshot requests: {}", s.ToString());
-      break;
-    }
-    if (taken == 0) break;
+    if (!s.ok()) spdlog::error("reading snapshot requests: {}", s.ToString());
   }
-  if (valid > 0) PublishSnapshot();  // one snapshot serves every request so far
+  // One snapshot serves every request so far; a stopping daemon publishes none.
+  if (valid > 0 && !stop_.load()) PublishSnapshot();
 }
 
 void Daemon::PublishSnapshot() {
@@ -367,8 +365,8 @@ void Daemon::PublishSnapshot() {
     event_msg_.set_last_part(part + 1 == parts);
     event_msg_.set_snapshot(true);
     for (const size_t end = std::min(pairs, next + per_part); next < end; ++next) {
-      event_msg_.add_collide(snapshot_pairs_[next].first);
-      event_msg_.add_collide(snapshot_pairs_[next].second);
+      event_msg_.add_snapshot_pairs(snapshot_pairs_[next].first);
+      event_msg_.add_snapshot_pairs(snapshot_pairs_[next].second);
     }
     event_msg_.set_objects(host_->Objects());
     event_msg_.set_overlaps(host_->Overlaps());

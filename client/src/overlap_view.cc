@@ -40,13 +40,14 @@ bool OverlapView::Apply(const wire::EventBatch& part) {
         pending_.clear();
       }
       if (building_ && part.frame() == building_frame_) {
-        for (int i = 0; i + 1 < part.collide_size(); i += 2)
-          pending_.insert(Key(part.collide(i), part.collide(i + 1)));
+        for (int i = 0; i + 1 < part.snapshot_pairs_size(); i += 2)
+          pending_.insert(Key(part.snapshot_pairs(i), part.snapshot_pairs(i + 1)));
         if (part.last_part()) {
           pairs_.swap(pending_);
           pending_.clear();
           building_ = false;
           synced_ = true;
+          mid_frame_ = false;
           frame_ = part.frame();
           ++snapshots_;
         }
@@ -70,6 +71,8 @@ bool OverlapView::Apply(const wire::EventBatch& part) {
       return true;
     }
   }
+  // Between the parts of a multi-part frame the set is neither frame's: not synced() then.
+  mid_frame_ = !part.last_part();
   if (part.last_part()) frame_ = part.frame();
   return false;
 }

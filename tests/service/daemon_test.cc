@@ -564,9 +564,10 @@ bool SyncTo(client::EventSubscriber& sub, client::SnapshotRequester& requests,
   return true;
 }
 
-// Issue 8: a subscriber that joins late, one that falls behind (KEEP_LAST 1 overwrites what it
-// does not read: a gap), and both across a daemon restart (a new epoch), each rebuild the exact
-// overlap set from a snapshot and keep it exact frame by frame. Snapshots are split into parts.
+// Issue 8: a subscriber that joins late, one that falls behind (KEEP_LAST 12 overwrites what it
+// does not read: a gap), and the first one across a daemon restart (a new epoch), each rebuild
+// the exact overlap set from a snapshot and keep it exact frame by frame. Snapshots are split into
+// parts.
 TEST(Daemon, LateLaggingAndRestartedSubscribersResyncFromSnapshots) {
   service::Config config = TestConfig(kDomain);
   config.engine.algorithm = "grid_dense";

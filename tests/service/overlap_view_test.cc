@@ -23,13 +23,14 @@ class Stream {
     wire::EventBatch b = Part(frame, part, last);
     b.set_snapshot(true);
     for (auto [a, c] : pairs) {
-      b.add_collide(a);
-      b.add_collide(c);
+      b.add_snapshot_pairs(a);
+      b.add_snapshot_pairs(c);
     }
     return b;
   }
-  wire::EventBatch Events(uint64_t frame, const PairList& uncollide, const PairList& collide) {
-    wire::EventBatch b = Part(frame, 0, true);
+  wire::EventBatch Events(uint64_t frame, const PairList& uncollide, const PairList& collide,
+                          uint32_t part = 0, bool last = true) {
+    wire::EventBatch b = Part(frame, part, last);
     for (auto [a, c] : uncollide) {
       b.add_uncollide(a);
       b.add_uncollide(c);
@@ -78,6 +79,20 @@ TEST(OverlapView, SyncsFromASnapshotOfSeveralPartsThenFollowsEvents) {
   EXPECT_EQ(v.size(), 3u);
   EXPECT_EQ(v.snapshots(), 1u);
   EXPECT_EQ(v.resyncs(), 0u);
+}
+
+TEST(OverlapView, NotSyncedBetweenThePartsOfAFrame) {
+  Stream s(7);
+  OverlapView v;
+  v.Apply(s.Snapshot(1, {{1, 2}}, 0, true));
+  ASSERT_TRUE(v.synced());
+  EXPECT_FALSE(v.Apply(s.Events(2, {{1, 2}}, {}, 0, false)));
+  EXPECT_FALSE(v.synced()) << "half of frame 2 applied: the set is neither frame 1's nor 2's";
+  EXPECT_FALSE(v.wants_snapshot());
+  EXPECT_FALSE(v.Apply(s.Events(2, {}, {{3, 4}}, 1, true)));
+  EXPECT_TRUE(v.synced());
+  EXPECT_EQ(v.frame(), 2u);
+  EXPECT_EQ(v.SortedPairs(), (PairList{{3, 4}}));
 }
 
 TEST(OverlapView, AGapDropsTheSetUntilTheNextSnapshot) {

@@ -42,9 +42,9 @@ class OverlapView {
   /// never had it and this is the first part): the moment to request a snapshot.
   bool Apply(const wire::EventBatch& part);
 
-  /// The set matches the daemon's as of frame().
-  bool synced() const { return synced_; }
-  /// True while unsynced.
+  /// The set matches the daemon's as of frame() (false between the parts of a frame).
+  bool synced() const { return synced_ && !mid_frame_; }
+  /// True while unsynced (waiting for a snapshot).
   bool wants_snapshot() const { return !synced_; }
   /// The daemon frame the set reflects (valid while synced).
   uint64_t frame() const { return frame_; }
@@ -80,8 +80,9 @@ class OverlapView {
   void Lose(std::string why);
 
   bool synced_ = false;
-  bool started_ = false;   // a part was seen
-  bool building_ = false;  // snapshot parts 0..k of frame building_frame_ collected
+  bool mid_frame_ = false;  // synced, and some but not all parts of a frame applied
+  bool started_ = false;    // a part was seen
+  bool building_ = false;   // snapshot parts 0..k of frame building_frame_ collected
   uint64_t building_frame_ = 0;
   uint64_t frame_ = 0;
   uint64_t epoch_ = 0;
