@@ -23,7 +23,8 @@ using detail::Field;
 using detail::NumberRange;
 using detail::YamlReader;
 
-constexpr std::array<std::string_view, 5> kSections{"engine", "dds", "frames", "limits", "logging"};
+constexpr std::array<std::string_view, 6> kSections{"engine", "dds",     "frames",
+                                                    "limits", "logging", "producers"};
 constexpr std::array<std::string_view, 6> kEngineKeys{"algorithm", "dimension", "coordinate",
                                                       "cell_size", "threads",   "margin"};
 constexpr std::array<std::string_view, 7> kDdsKeys{
@@ -31,10 +32,11 @@ constexpr std::array<std::string_view, 7> kDdsKeys{
     "write_timeout_ms", "event_history",  "update_queue"};
 constexpr std::array<std::string_view, 4> kTopicKeys{"updates", "events", "status", "requests"};
 constexpr std::array<std::string_view, 2> kFramesKeys{"boundary", "tick_ms"};
-constexpr std::array<std::string_view, 5> kLimitsKeys{"max_batch_bytes", "max_batch_items",
-                                                      "max_objects", "max_pairs_per_event_batch",
-                                                      "max_rejections_reported"};
+constexpr std::array<std::string_view, 6> kLimitsKeys{
+    "max_batch_bytes",           "max_batch_items",         "max_objects",
+    "max_pairs_per_event_batch", "max_rejections_reported", "snapshot_interval_ms"};
 constexpr std::array<std::string_view, 3> kLoggingKeys{"level", "summary_interval_s", "file"};
+constexpr std::array<std::string_view, 1> kProducersKeys{"lease_s"};
 
 // Indexed by the enums' values.
 constexpr std::array<std::string_view, 3> kCoordinateNames{"float", "double", "int32"};
@@ -46,6 +48,7 @@ constexpr int kMaxWriteTimeoutMs = 60000;
 constexpr int kMaxQueueDepth = 100000;
 constexpr double kMaxTickMs = 60000;
 constexpr double kMaxSummaryIntervalS = 86400;
+constexpr double kMaxLeaseS = 86400;
 constexpr uint64_t kMinBatchBytes = 64;
 // protobuf parses and serialises at most 2 GiB - 1 bytes per message.
 constexpr uint64_t kMaxBatchBytes = (uint64_t{1} << 31) - 1;
@@ -159,6 +162,8 @@ void ReadLimits(YamlReader& r, const Field& section, LimitsConfig* l) {
       r.ReadUint64(v, 1, kMaxPairsPerEventBatch, &l->max_pairs_per_event_batch);
     } else if (name == "max_rejections_reported") {
       r.ReadUint64(v, 0, kU64Max, &l->max_rejections_reported);
+    } else if (name == "snapshot_interval_ms") {
+      r.ReadInt(v, 0, kMaxWriteTimeoutMs, &l->snapshot_interval_ms);
     }
   });
 }
@@ -173,6 +178,12 @@ void ReadLogging(YamlReader& r, const Field& section, LoggingConfig* l) {
     } else if (name == "file") {
       r.ReadString(v, &l->file);
     }
+  });
+}
+
+void ReadProducers(YamlReader& r, const Field& section, ProducersConfig* p) {
+  r.ReadMapping(section, kProducersKeys, [&](std::string_view name, const Field& v) {
+    if (name == "lease_s") r.ReadNumber(v, NumberRange{.min = 0, .max = kMaxLeaseS}, &p->lease_s);
   });
 }
 
@@ -312,6 +323,7 @@ Status ParseConfig(std::string_view yaml_text, std::string_view source, Config* 
         if (name == "frames") ReadFrames(r, section, &config.frames);
         if (name == "limits") ReadLimits(r, section, &config.limits);
         if (name == "logging") ReadLogging(r, section, &config.logging);
+        if (name == "producers") ReadProducers(r, section, &config.producers);
       });
       CheckCrossKeys(r, &config);
     }
@@ -402,10 +414,13 @@ std::string ConfigToYaml(const Config& c) {
   line(k1, "max_objects", std::to_string(c.limits.max_objects));
   line(k1, "max_pairs_per_event_batch", std::to_string(c.limits.max_pairs_per_event_batch));
   line(k1, "max_rejections_reported", std::to_string(c.limits.max_rejections_reported));
+  line(k1, "snapshot_interval_ms", std::to_string(c.limits.snapshot_interval_ms));
   y += "logging:\n";
   line(k1, "level", YamlString(c.logging.level));
   line(k1, "summary_interval_s", FormatNumber(c.logging.summary_interval_s));
   line(k1, "file", YamlString(c.logging.file));
+  y += "producers:\n";
+  line(k1, "lease_s", FormatNumber(c.producers.lease_s));
   return y;
 }
 

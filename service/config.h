@@ -98,6 +98,9 @@ struct LimitsConfig {
   /// 1 .. 2^26; a frame's events are split into parts of at most this many pairs.
   uint64_t max_pairs_per_event_batch = 1u << 20;
   uint64_t max_rejections_reported = 100;  ///< per batch, individually; the rest are counted
+  /// 0 .. 60000 ms: at most one snapshot per this interval; requests in between wait for it
+  /// (one snapshot serves them all), so subscribers that keep asking cannot flood the topic.
+  int snapshot_interval_ms = 100;
 
   /// Member-wise equality.
   bool operator==(const LimitsConfig&) const = default;
@@ -114,13 +117,25 @@ struct LoggingConfig {
   bool operator==(const LoggingConfig&) const = default;
 };
 
+/// The `producers` section: what happens to the objects of a producer that goes away.
+struct ProducersConfig {
+  /// Seconds a producer's DDS writer may be not alive (its process died or hung, or it left)
+  /// before the daemon erases its objects, with uncollide events for their pairs; a producer
+  /// that comes back in time keeps them. 0 = never erase. >= 0, <= 86400.
+  double lease_s = 10.0;
+
+  /// Member-wise equality.
+  bool operator==(const ProducersConfig&) const = default;
+};
+
 /// The whole configuration.
 struct Config {
-  EngineConfig engine;    ///< `engine`
-  DdsConfig dds;          ///< `dds`
-  FramesConfig frames;    ///< `frames`
-  LimitsConfig limits;    ///< `limits`
-  LoggingConfig logging;  ///< `logging`
+  EngineConfig engine;        ///< `engine`
+  DdsConfig dds;              ///< `dds`
+  FramesConfig frames;        ///< `frames`
+  LimitsConfig limits;        ///< `limits`
+  LoggingConfig logging;      ///< `logging`
+  ProducersConfig producers;  ///< `producers`
   /// Where it came from: the file path, or the name given to ParseConfig.
   std::string source;
   /// Accepted but noteworthy, e.g. "<source>:3:14: engine.cell_size: ignored by engine

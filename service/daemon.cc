@@ -17,6 +17,8 @@ constexpr size_t kTakeBatch = 64;
 // Rejections logged one by one per batch; the rest are summarised in one line.
 constexpr size_t kRejectionsLogged = 10;
 
+std::string FormatSeconds(double s) { return fmt::format("{:g} s", s); }
+
 std::string HostName() {
   char name[256] = {};
   if (gethostname(name, sizeof(name) - 1) != 0) return "unknown";
@@ -53,8 +55,12 @@ Status Daemon::Create(const Config& config, std::unique_ptr<Daemon>* out) {
   dds::Qos requests_qos;
   client::qos::RequestsReader(requests_qos.get());
   auto& participant = d->connection_->participant();
+  // The waitset first: the liveliness listener wakes it as soon as the reader exists.
+  if (Status s = dds::WaitSet::Create(participant, &d->waitset_); !s.ok()) return s;
+  d->liveliness_ = std::make_unique<dds::WriterLiveliness>();
+  d->liveliness_->SetOnChange([daemon = d.get()] { daemon->waitset_.Wake(); });
   if (Status s = dds::Reader::Create(participant, d->connection_->updates_topic(), updates_qos,
-                                     &d->updates_);
+                                     &d->updates_, d->liveliness_.get());
       !s.ok()) {
     return s;
   }
@@ -73,7 +79,6 @@ Status Daemon::Create(const Config& config, std::unique_ptr<Daemon>* out) {
       !s.ok()) {
     return s;
   }
-  if (Status s = dds::WaitSet::Create(participant, &d->waitset_); !s.ok()) return s;
   if (Status s = d->waitset_.Attach(d->updates_); !s.ok()) return s;
   if (Status s = d->waitset_.Attach(d->requests_); !s.ok()) return s;
   std::random_device random;
@@ -82,7 +87,10 @@ Status Daemon::Create(const Config& config, std::unique_ptr<Daemon>* out) {
   return Status::Ok();
 }
 
-Daemon::~Daemon() = default;
+Daemon::~Daemon() {
+  // The reader (and so the listener) outlives the waitset among the members: stop the wakes.
+  if (liveliness_) liveliness_->SetOnChange(nullptr);
+}
 
 void Daemon::RequestStop() {
   stop_.store(true);
@@ -91,12 +99,13 @@ void Daemon::RequestStop() {
 
 Status Daemon::Run() {
   spdlog::info(
-      "broadphased {}: engine {} ({}-D, {}), DDS domain {} partition '{}', topics {} / {} / {}, "
-      "frames on {}",
+      "broadphased {}: engine {} ({}-D, {}), DDS domain {} partition '{}', topics {} / {} / {} / "
+      "{}, frames on {}, producer lease {} s, epoch {:016x}",
       daemon_name_, host_->Name(), host_->Dimension(),
       CoordinateTypeName(config_.engine.coordinate), config_.dds.domain, config_.dds.partition,
       config_.dds.topics.updates, config_.dds.topics.events, config_.dds.topics.status,
-      FrameBoundaryName(config_.frames.boundary));
+      config_.dds.topics.requests, FrameBoundaryName(config_.frames.boundary),
+      config_.producers.lease_s, epoch_);
   PublishStatus(wire::SERVING, false);
   serving_.store(true);
   interval_start_ = Clock::now();
@@ -111,8 +120,10 @@ Status Daemon::Run() {
   auto next_tick = Clock::now() + tick;
   auto next_summary = Clock::now() + summary_every;
 
+  auto next_expiry = Clock::time_point::max();
+  auto next_snapshot = Clock::time_point::max();
   while (!stop_.load()) {
-    auto wake = next_summary;
+    auto wake = std::min({next_summary, next_expiry, next_snapshot});
     if (tick_mode) wake = std::min(wake, next_tick);
     const auto now = Clock::now();
     int triggered = 0;
@@ -126,7 +137,8 @@ Status Daemon::Run() {
     // At most one queue's worth per turn: under sustained load the queue never empties, and
     // ticks, summaries and a stop request must still get their turn.
     Drain(drain_rounds, /*until_stop=*/true);
-    ServeRequests();
+    next_snapshot = ServeRequests();
+    next_expiry = CheckProducers();
     if (tick_mode && Clock::now() >= next_tick) {
       RunFrame(0, 0, 0);
       next_tick += tick;
@@ -177,13 +189,83 @@ void Daemon::Drain(size_t max_rounds, bool until_stop) {
 bool Daemon::ClaimProducer(uint32_t producer, dds_instance_handle_t writer) {
   auto [it, inserted] = claims_.try_emplace(producer, writer);
   if (inserted || it->second == writer) return true;
-  // Another writer holds the id: it keeps it while it is alive (still matched).
+  // Another writer holds the id: it keeps it while it is alive (matched, liveliness not lost).
+  (void)CheckProducers();  // liveliness changes that arrived with this batch
+  auto holder = claims_.find(producer);
+  if (holder == claims_.end()) {  // the lease just expired
+    claims_.emplace(producer, writer);
+    return true;
+  }
   const auto matched = updates_.MatchedWriterHandles();
-  if (std::find(matched.begin(), matched.end(), it->second) != matched.end()) return false;
-  spdlog::info("producer {}: its previous writer is gone; a new writer takes over the id",
-               producer);
-  it->second = writer;
+  const bool matched_now =
+      std::find(matched.begin(), matched.end(), holder->second) != matched.end();
+  if (matched_now && !down_since_.contains(holder->second)) return false;
+  // A new incarnation: what the old writer left is erased before the new one's batch applies.
+  ExpireProducer(producer,
+                 matched_now ? "its writer is not alive and a new writer takes over"
+                             : "its writer left and a new writer takes over",
+                 /*close_frame=*/false);
+  claims_.emplace(producer, writer);
   return true;
+}
+
+std::chrono::steady_clock::time_point Daemon::CheckProducers() {
+  liveliness_->TakeChanges(&liveliness_changes_);
+  const auto now = Clock::now();
+  for (const auto& change : liveliness_changes_) {
+    if (change.alive) {
+      down_since_.erase(change.writer);
+    } else {
+      down_since_.try_emplace(change.writer, now);
+    }
+  }
+  auto next = Clock::time_point::max();
+  if (down_since_.empty()) return next;
+  const bool leasing = config_.producers.lease_s > 0;
+  const auto lease = std::chrono::duration_cast<Clock::duration>(
+      std::chrono::duration<double>(config_.producers.lease_s));
+  std::vector<uint32_t> expired;
+  for (auto it = down_since_.begin(); it != down_since_.end();) {
+    const auto due = it->second + lease;
+    uint32_t producer = 0;
+    for (const auto& [p, w] : claims_) {
+      if (w == it->first) producer = p;
+    }
+    if (producer == 0) {
+      // Not a producer's writer (or one already expired): forget it once its lease passed.
+      it = (now >= due) ? down_since_.erase(it) : std::next(it);
+      continue;
+    }
+    if (leasing && now >= due) {
+      expired.push_back(producer);
+      it = down_since_.erase(it);
+      continue;
+    }
+    if (leasing) next = std::min(next, due);
+    ++it;
+  }
+  for (uint32_t producer : expired) {
+    ExpireProducer(producer,
+                   "its writer has not been alive for producers.lease_s = " +
+                       FormatSeconds(config_.producers.lease_s),
+                   /*close_frame=*/true);
+  }
+  return next;
+}
+
+void Daemon::ExpireProducer(uint32_t producer, const std::string& why, bool close_frame) {
+  const uint64_t erased = host_->EraseProducer(producer);
+  claims_.erase(producer);
+  last_batch_seq_.erase(producer);
+  producers_expired_.fetch_add(1);
+  spdlog::warn("producer {}: {}; erased its {} objects", producer, why, erased);
+  if (erased > 0) {
+    frame_dirty_ = true;
+    // A lease: the uncollides go out now, whatever the frame boundary. A take-over: the new
+    // writer's batch follows and its frame carries them.
+    if (close_frame) RunFrame(0, 0, 0);
+  }
+  PublishStatus(wire::SERVING, false);  // operators see producers_expired change
 }
 
 void Daemon::ProcessPayload(std::span<const uint8_t> payload, const dds_sample_info_t& info) {
@@ -326,7 +408,7 @@ void Daemon::WriteEventPart() {
   }
 }
 
-void Daemon::ServeRequests() {
+std::chrono::steady_clock::time_point Daemon::ServeRequests() {
   // One take per loop turn (bounded); requests beyond it wait for the next turn.
   size_t valid = 0;
   {
@@ -347,12 +429,24 @@ void Daemon::ServeRequests() {
         &taken);
     if (!s.ok()) spdlog::error("reading snapshot requests: {}", s.ToString());
   }
-  // One snapshot serves every request so far; a stopping daemon publishes none.
-  if (valid > 0 && !stop_.load()) PublishSnapshot();
+  if (valid > 0) snapshot_due_ = true;
+  // One snapshot serves every request so far, at most one per limits.snapshot_interval_ms; a
+  // stopping daemon publishes none.
+  if (!snapshot_due_ || stop_.load()) return Clock::time_point::max();
+  const auto interval = std::chrono::milliseconds(config_.limits.snapshot_interval_ms);
+  const auto now = Clock::now();
+  if (last_snapshot_ != Clock::time_point{} && now < last_snapshot_ + interval) {
+    return last_snapshot_ + interval;
+  }
+  PublishSnapshot();
+  snapshot_due_ = false;
+  last_snapshot_ = now;
+  return Clock::time_point::max();
 }
 
 void Daemon::PublishSnapshot() {
   host_->Snapshot(&snapshot_pairs_);
+  snapshots_published_.fetch_add(1);  // before its parts: a reader that saw them sees the count
   const size_t pairs = snapshot_pairs_.size();
   const size_t per_part = static_cast<size_t>(config_.limits.max_pairs_per_event_batch);
   const size_t parts = std::max<size_t>(1, (pairs + per_part - 1) / per_part);
@@ -372,7 +466,6 @@ void Daemon::PublishSnapshot() {
     event_msg_.set_overlaps(host_->Overlaps());
     WriteEventPart();
   }
-  snapshots_published_.fetch_add(1);
   spdlog::info("snapshot of frame {}: {} pairs in {} part(s)", frames_.load(), pairs, parts);
 }
 
@@ -394,6 +487,8 @@ void Daemon::PublishStatus(wire::Health health, bool with_interval) {
   status_msg_.set_rejected_total(rejected_total_.load());
   status_msg_.set_event_write_failures(event_write_failures_);
   status_msg_.set_producers(static_cast<uint32_t>(claims_.size()));
+  status_msg_.set_epoch(epoch_);
+  status_msg_.set_producers_expired(producers_expired_.load());
   buffer_.clear();
   if (!status_msg_.SerializeToString(&buffer_)) {
     spdlog::warn("status report does not serialise");

@@ -11,6 +11,12 @@
 // Snapshot requests (requests topic) are served between frames: the complete overlap set as of
 // the last frame, as snapshot parts on the events topic, in the same sequence as the events.
 //
+// Producers: a producer id belongs to the DDS writer that first used it. When that writer stops
+// being alive (its process died or hung: its liveliness lease expired; or it left) for
+// producers.lease_s, the producer's objects are erased and a frame publishes the uncollides. A
+// new writer may take the id over once the old one is not alive or gone; it starts afresh (the
+// old incarnation's objects are erased first).
+//
 // Invariants: EventBatch.sequence increases by one per part written (events and snapshots),
 // also when a write failed, so subscribers see every loss as a gap; every part carries the
 // run's random epoch; a batch's valid items are applied even when others
@@ -49,6 +55,8 @@ class Daemon {
   uint64_t frames() const { return frames_.load(); }
   /// Items rejected so far.
   uint64_t rejected() const { return rejected_total_.load(); }
+  /// Producers whose objects were erased because they went away (lease or take-over).
+  uint64_t producers_expired() const { return producers_expired_.load(); }
   /// Snapshots published so far.
   uint64_t snapshots() const { return snapshots_published_.load(); }
   /// This run's epoch (EventBatch.epoch).
@@ -62,12 +70,19 @@ class Daemon {
   Daemon() = default;
   void ProcessPayload(std::span<const uint8_t> payload, const dds_sample_info_t& info);
   bool ClaimProducer(uint32_t producer, dds_instance_handle_t writer);
+  // Takes the writers' liveliness changes; erases the objects of producers whose writer has been
+  // gone for producers.lease_s. Returns when the next one is due (time_point::max() if none).
+  std::chrono::steady_clock::time_point CheckProducers();
+  // Erases producer's objects and forgets the producer; with close_frame, runs a frame at once.
+  void ExpireProducer(uint32_t producer, const std::string& why, bool close_frame);
   // Takes and processes up to max_rounds rounds of batches; with until_stop, also returns as
   // soon as a stop is requested.
   void Drain(size_t max_rounds, bool until_stop);
   void RunFrame(uint32_t source_producer, uint64_t source_frame, uint64_t source_sent_ns);
-  // Takes the snapshot requests that arrived; publishes one snapshot if any asked for it.
-  void ServeRequests();
+  // Takes the snapshot requests that arrived; publishes one snapshot if any asked for it and
+  // the last one is limits.snapshot_interval_ms old. Returns when a deferred one is due
+  // (time_point::max() if none).
+  std::chrono::steady_clock::time_point ServeRequests();
   void PublishSnapshot();
   // Writes event_msg_ (sequence already set); a failure is counted and logged.
   void WriteEventPart();
@@ -77,6 +92,8 @@ class Daemon {
   void Summary();
 
   Config config_;
+  // Before connection_: Cyclone's listener thread may call it until the reader is deleted.
+  std::unique_ptr<dds::WriterLiveliness> liveliness_;
   std::unique_ptr<EngineHost> host_;
   std::unique_ptr<client::Connection> connection_;
   dds::Reader updates_;
@@ -92,6 +109,7 @@ class Daemon {
   std::atomic<uint64_t> rejected_total_{0};
   std::atomic<uint64_t> batches_total_{0};
   std::atomic<uint64_t> snapshots_published_{0};
+  std::atomic<uint64_t> producers_expired_{0};
 
   // Frame state.
   bool frame_dirty_ = false;  // a batch was applied since the last frame
@@ -103,6 +121,8 @@ class Daemon {
   uint64_t epoch_ = 0;  // random per start, on every event part
   std::vector<std::pair<uint64_t, uint64_t>> snapshot_pairs_;
   wire::SnapshotRequest request_;
+  bool snapshot_due_ = false;  // a request arrived and its snapshot waits for the interval
+  std::chrono::steady_clock::time_point last_snapshot_{};
   std::vector<uint64_t> uncollide_;
   std::vector<uint64_t> collide_;
   wire::UpdateBatch batch_;
@@ -113,6 +133,9 @@ class Daemon {
   // Producers: the writer that claimed each id, and the last batch_seq seen.
   std::unordered_map<uint32_t, dds_instance_handle_t> claims_;
   std::unordered_map<uint32_t, uint64_t> last_batch_seq_;
+  // Writers of the updates topic that are not alive (lost liveliness or left), since when.
+  std::unordered_map<dds_instance_handle_t, std::chrono::steady_clock::time_point> down_since_;
+  std::vector<dds::WriterLiveliness::Change> liveliness_changes_;
 
   // Rejections of the batch being processed.
   std::vector<wire::Rejection> pending_rejections_;

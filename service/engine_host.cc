@@ -103,6 +103,19 @@ class TypedHost final : public EngineHost {
     ApplyBoxes(batch, wire::OP_UPDATE, batch.updates(), refuse, out);
   }
 
+  uint64_t EraseProducer(uint32_t producer) override {
+    std::vector<uint64_t> keys;
+    engine_->ForEachObject([&](const uint64_t& key) {
+      if ((key >> kProducerShift) == producer) keys.push_back(key);
+    });
+    uint64_t erased = 0;
+    for (uint64_t key : keys) {
+      if (engine_->Erase(key).ok()) ++erased;
+    }
+    objects_ -= erased;
+    return erased;
+  }
+
   void Query(std::vector<uint64_t>* uncollide, std::vector<uint64_t>* collide) override {
     uncollide->clear();
     collide->clear();
@@ -248,6 +261,17 @@ class TypedHost final : public EngineHost {
       if (boxes.category_size() > 0) options.category = boxes.category(i);
       if (boxes.mask_size() > 0) options.mask = boxes.mask(i);
       if (boxes.static_flags_size() > 0) options.is_static = boxes.static_flags(i);
+      if (batch.restate() && engine_->Erase(key).ok()) {
+        // Restated: the object the daemon holds is replaced (the engine turns erase + insert
+        // into an update, or into a rekey when the attributes changed).
+        if (Status s = engine_->Insert(key, box, options); !s.ok()) {
+          --objects_;
+          refuse(op, index, id, wire::ENGINE_REFUSED, s.ToString() + " (the object is erased)");
+        } else {
+          ++out->updates;
+        }
+        continue;
+      }
       if (objects_ >= max_objects_) {
         refuse(
             op, index, id, wire::CAPACITY,

@@ -4,7 +4,8 @@
 // The host owns the id space: a producer's local id (< 2^48) becomes the engine key
 // (producer << 48) | id, so a producer can only name its own objects. It applies a batch in the
 // documented order (erases, inserts, updates), rejects each bad item with a reason and applies
-// the rest, and converts wire coordinates to the engine's type: doubles to a float engine are
+// the rest (a restate batch's insert of a live id replaces that object), and converts wire
+// coordinates to the engine's type: doubles to a float engine are
 // rounded outward (lo down, hi up), so a conversion never loses a pair; an integer engine takes
 // integral values in range only.
 //
@@ -66,6 +67,9 @@ class EngineHost {
   /// valid item; reject receives each refused one.
   virtual void Apply(const wire::UpdateBatch& batch, const std::function<void(Reject&&)>& reject,
                      ApplyCounts* out) = 0;
+  /// Erases every object of producer (buffered, like Apply's erases); returns how many.
+  /// O(live objects): for a producer that went away.
+  virtual uint64_t EraseProducer(uint32_t producer) = 0;
   /// Runs the engine's query; replaces uncollide and collide by the frame's reported pairs,
   /// flattened (a0, b0, a1, b1, ...) in canonical order.
   virtual void Query(std::vector<uint64_t>* uncollide, std::vector<uint64_t>* collide) = 0;

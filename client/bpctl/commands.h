@@ -36,6 +36,7 @@ struct SceneOptions {
   uint32_t producer = 1;
   uint64_t max_items = 100'000;  ///< items per batch (a frame larger than this is split)
   uint32_t readers = 1;  ///< readers to wait for before the first frame (daemon + recorders)
+  bool restate = true;   ///< keep the objects and restate them to a restarted daemon
   bool quiet = false;
 };
 int Scene(const Common& common, const SceneOptions& options);

@@ -47,6 +47,8 @@ int main(int argc, char** argv) {
       ->add_option("--readers", scene.readers,
                    "update readers to wait for (2 = the daemon and a recorder)")
       ->check(CLI::PositiveNumber);
+  scene_cmd->add_flag("!--no-restate", scene.restate,
+                      "do not keep the objects to restate them to a restarted daemon");
   scene_cmd->add_flag("-q,--quiet", scene.quiet, "no progress lines");
 
   bp::bpctl::WatchOptions watch;

@@ -39,7 +39,7 @@ bool PublishFrame(client::UpdatePublisher& pub, const workload::FrameOps& ops, i
         std::fprintf(stderr, "bpctl scene: %s\n", s.ToString().c_str());
         return false;
       }
-      ++*retries;  // the daemon is saturated: wait and retry the same batch
+      ++*retries;  // the daemon is saturated (or a restate was cut short): retry the batch
       if (StopRequested()) return false;
     }
   } while (e < ops.erases.size() || i < ops.inserts.size() || u < ops.updates.size());
@@ -56,10 +56,19 @@ int Scene(const Common& common, const SceneOptions& options) {
   }
   auto connection = Connect(common);
   if (!connection) return 1;
+  // Batches the daemon accepts: at most limits.max_batch_items items, and bytes below
+  // limits.max_batch_bytes (a box costs at most 8 + 2 * 3 * 8 bytes plus tags; 64 is safe).
+  const uint64_t max_items =
+      std::max<uint64_t>(1, std::min({options.max_items, common.config.limits.max_batch_items,
+                                      common.config.limits.max_batch_bytes / 64}));
+  client::PublisherOptions publisher_options;
+  publisher_options.write_timeout = std::chrono::milliseconds(common.config.dds.write_timeout_ms);
+  publisher_options.restate_on_restart = options.restate;
+  publisher_options.restate_batch_items =
+      static_cast<uint32_t>(std::min<uint64_t>(max_items, UINT32_MAX));
   std::unique_ptr<client::UpdatePublisher> pub;
-  if (Status s = client::UpdatePublisher::Create(
-          *connection, options.producer,
-          std::chrono::milliseconds(common.config.dds.write_timeout_ms), &pub);
+  if (Status s =
+          client::UpdatePublisher::Create(*connection, options.producer, publisher_options, &pub);
       !s.ok()) {
     std::fprintf(stderr, "bpctl scene: %s\n", s.ToString().c_str());
     return 1;
@@ -80,11 +89,12 @@ int Scene(const Common& common, const SceneOptions& options) {
                  p.n, p.moving, p.churn, p.dim, static_cast<unsigned long long>(p.seed),
                  options.producer, options.rate_hz);
   }
-  // Batches the daemon accepts: at most limits.max_batch_items items, and bytes below
-  // limits.max_batch_bytes (a box costs at most 8 + 2 * 3 * 4 bytes plus tags; 64 is safe).
-  const uint64_t max_items =
-      std::max<uint64_t>(1, std::min({options.max_items, common.config.limits.max_batch_items,
-                                      common.config.limits.max_batch_bytes / 64}));
+  // The daemon's epoch before the first frame (else the first status report would look like a
+  // restart and cost a restate of everything).
+  for (int i = 0; options.restate && i < 200 && pub->daemon_epoch() == 0; ++i) {
+    (void)pub->Maintain();
+    std::this_thread::sleep_for(std::chrono::milliseconds(5));
+  }
   workload::Scene scene(p);
   workload::FrameOps ops;
   ops.inserts = scene.Initial();
@@ -133,10 +143,12 @@ int Scene(const Common& common, const SceneOptions& options) {
   if (!options.quiet) {
     const double seconds = SecondsSince(start);
     std::fprintf(stderr,
-                 "bpctl scene: published %llu frames in %.2f s (%.1f frames/s), %llu late\n",
+                 "bpctl scene: published %llu frames in %.2f s (%.1f frames/s), %llu late, "
+                 "%llu restates to a restarted daemon\n",
                  static_cast<unsigned long long>(frame), seconds,
                  static_cast<double>(frame) / std::max(seconds, 1e-9),
-                 static_cast<unsigned long long>(late));
+                 static_cast<unsigned long long>(late),
+                 static_cast<unsigned long long>(pub->restates()));
   }
   return failed ? 1 : 0;
 }

@@ -182,12 +182,13 @@ int ShowStatus(const Common& common, const StatusOptions& options) {
       const wire::DaemonStatus& r = reports[k];
       any = true;
       std::printf(
-          "%s: %s, engine %s %u-D %s, frame %llu, objects %llu, overlaps %llu, "
-          "producers %u, rejected %llu, event write failures %llu\n",
-          r.daemon().c_str(), HealthName(r.health()), r.engine().c_str(), r.dim(),
-          r.coordinate().c_str(), static_cast<unsigned long long>(r.frame()),
-          static_cast<unsigned long long>(r.objects()),
+          "%s: %s, epoch %016llx, engine %s %u-D %s, frame %llu, objects %llu, overlaps %llu, "
+          "producers %u (%llu expired), rejected %llu, event write failures %llu\n",
+          r.daemon().c_str(), HealthName(r.health()), static_cast<unsigned long long>(r.epoch()),
+          r.engine().c_str(), r.dim(), r.coordinate().c_str(),
+          static_cast<unsigned long long>(r.frame()), static_cast<unsigned long long>(r.objects()),
           static_cast<unsigned long long>(r.overlaps()), r.producers(),
+          static_cast<unsigned long long>(r.producers_expired()),
           static_cast<unsigned long long>(r.rejected_total()),
           static_cast<unsigned long long>(r.event_write_failures()));
       if (r.has_interval() && r.interval().seconds() > 0) {

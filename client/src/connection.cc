@@ -19,9 +19,11 @@ Status ReadTextFile(const std::string& path, std::string* out) {
 }
 
 namespace qos {
-void UpdatesWriter(dds_qos_t* qos, std::chrono::milliseconds write_timeout) {
+void UpdatesWriter(dds_qos_t* qos, std::chrono::milliseconds write_timeout,
+                   std::chrono::milliseconds liveliness_lease) {
   dds_qset_reliability(qos, DDS_RELIABILITY_RELIABLE, Ms(write_timeout));
   dds_qset_history(qos, DDS_HISTORY_KEEP_ALL, 0);
+  dds_qset_liveliness(qos, DDS_LIVELINESS_AUTOMATIC, Ms(liveliness_lease));
 }
 void UpdatesReader(dds_qos_t* qos, int32_t queue) {
   dds_qset_reliability(qos, DDS_RELIABILITY_RELIABLE, DDS_SECS(1));

@@ -204,10 +204,38 @@ Status Writer::WaitForAcks(std::chrono::milliseconds timeout) const {
   return FromRetcode(dds_wait_for_acks(writer_.get(), ToDds(timeout)), "waiting for DDS acks");
 }
 
+void WriterLiveliness::TakeChanges(std::vector<Change>* out) {
+  out->clear();
+  std::lock_guard<std::mutex> lock(mutex_);
+  out->swap(changes_);
+}
+
+void WriterLiveliness::OnLivelinessChanged(dds_entity_t /*reader*/,
+                                           dds_liveliness_changed_status_t status, void* arg) {
+  auto* self = static_cast<WriterLiveliness*>(arg);
+  // One call per change: +1 alive when a writer matches or regains liveliness; -1 alive when it
+  // loses it (+1 not alive) or is deleted; -1 not alive when a writer that was not alive goes.
+  if (status.alive_count_change == 0 && status.not_alive_count_change == 0) return;
+  std::lock_guard<std::mutex> lock(self->mutex_);
+  self->changes_.push_back({status.last_publication_handle, status.alive_count_change > 0});
+  if (self->on_change_) self->on_change_();
+}
+
+void WriterLiveliness::SetOnChange(std::function<void()> on_change) {
+  std::lock_guard<std::mutex> lock(mutex_);
+  on_change_ = std::move(on_change);
+}
+
 Status Reader::Create(const Participant& participant, dds_entity_t topic, const Qos& qos,
-                      Reader* out) {
+                      Reader* out, WriterLiveliness* liveliness) {
+  dds_listener_t* listener = nullptr;
+  if (liveliness != nullptr) {
+    listener = dds_create_listener(liveliness);
+    dds_lset_liveliness_changed(listener, &WriterLiveliness::OnLivelinessChanged);
+  }
   const dds_entity_t reader =
-      dds_create_reader(participant.subscriber(), topic, qos.get(), nullptr);
+      dds_create_reader(participant.subscriber(), topic, qos.get(), listener);
+  if (listener != nullptr) dds_delete_listener(listener);
   if (reader < 0) return FromRetcode(reader, "creating DDS reader");
   out->reader_ = Entity(reader);
   return Status::Ok();

@@ -1,8 +1,20 @@
 #include "bp/client/update_publisher.h"
 
+#include <algorithm>
+#include <thread>
+
 #include <time.h>
 
 namespace bp::client {
+namespace {
+
+template <class R>
+void CopyCorner(const R& values, size_t at, uint32_t dim, std::array<double, 6>* out) {
+  for (uint32_t a = 0; a < dim; ++a)
+    (*out)[a] = static_cast<double>(values.Get(static_cast<int>(at + a)));
+}
+
+}  // namespace
 
 uint64_t WallClockNs() {
   timespec ts{};
@@ -13,28 +25,60 @@ uint64_t WallClockNs() {
 Status UpdatePublisher::Create(Connection& connection, uint32_t producer,
                                std::chrono::milliseconds write_timeout,
                                std::unique_ptr<UpdatePublisher>* out) {
+  PublisherOptions options;
+  options.write_timeout = write_timeout;
+  return Create(connection, producer, options, out);
+}
+
+Status UpdatePublisher::Create(Connection& connection, uint32_t producer,
+                               const PublisherOptions& options,
+                               std::unique_ptr<UpdatePublisher>* out) {
   if (producer == 0 || producer > 0xFFFF) {
     return Status(StatusCode::kInvalidArgument,
                   "producer id " + std::to_string(producer) + " is outside 1..65535");
   }
+  if (options.restate_batch_items == 0) {
+    return Status(StatusCode::kInvalidArgument, "restate_batch_items must be at least 1");
+  }
   std::unique_ptr<UpdatePublisher> p(new UpdatePublisher());
   p->producer_ = producer;
+  p->options_ = options;
   dds::Qos qos;
-  qos::UpdatesWriter(qos.get(), write_timeout);
+  qos::UpdatesWriter(qos.get(), options.write_timeout, options.liveliness_lease);
   if (Status s = dds::Writer::Create(connection.participant(), connection.updates_topic(), qos,
                                      &p->writer_);
       !s.ok()) {
     return s;
   }
+  if (options.restate_on_restart) {
+    dds::Qos status_qos;
+    qos::StatusReader(status_qos.get(), 16);
+    if (Status s = dds::Reader::Create(connection.participant(), connection.status_topic(),
+                                       status_qos, &p->status_);
+        !s.ok()) {
+      return s;
+    }
+  }
   *out = std::move(p);
   return Status::Ok();
 }
 
-Status UpdatePublisher::WaitForDaemon(std::chrono::milliseconds timeout) const {
-  return writer_.WaitForReaders(1, timeout);
+Status UpdatePublisher::WaitForDaemon(std::chrono::milliseconds timeout) {
+  const auto deadline = std::chrono::steady_clock::now() + timeout;
+  if (Status s = writer_.WaitForReaders(1, timeout); !s.ok()) return s;
+  if (!options_.restate_on_restart) return Status::Ok();
+  while (true) {
+    if (Status s = Maintain(); !s.ok()) return s;
+    if (epoch_ != 0) return Status::Ok();
+    if (std::chrono::steady_clock::now() >= deadline) {
+      return Status(StatusCode::kDeadlineExceeded,
+                    "waiting for the daemon's status report (its epoch)");
+    }
+    std::this_thread::sleep_for(std::chrono::milliseconds(5));
+  }
 }
 
-Status UpdatePublisher::Publish(wire::UpdateBatch* batch) {
+Status UpdatePublisher::Stamp(wire::UpdateBatch* batch) {
   batch->set_version(wire::SCHEMA_VERSION_1);
   batch->set_producer(producer_);
   batch->set_batch_seq(seq_ + 1);
@@ -46,10 +90,130 @@ Status UpdatePublisher::Publish(wire::UpdateBatch* batch) {
   return PublishRaw(buffer_);
 }
 
+Status UpdatePublisher::Publish(wire::UpdateBatch* batch) {
+  if (options_.restate_on_restart) {
+    if (Status s = Maintain(); !s.ok()) return s;
+  }
+  if (Status s = Stamp(batch); !s.ok()) return s;
+  if (options_.restate_on_restart) {
+    if (epoch_ == 0) published_before_epoch_ = true;
+    Keep(*batch);
+  }
+  return Status::Ok();
+}
+
 Status UpdatePublisher::PublishRaw(std::string_view payload) {
   Status s = writer_.Write(seq_ + 1, payload);
   if (s.ok()) ++seq_;
   return s;
+}
+
+void UpdatePublisher::Keep(const wire::UpdateBatch& batch) {
+  // The daemon's order: erases, inserts, updates.
+  for (uint64_t id : batch.erases()) kept_.erase(id);
+  if (batch.dim() >= 1 && batch.dim() <= 6) dim_ = batch.dim();
+  frame_ = batch.frame();
+  const uint32_t k = dim_;
+  auto corners = [&](const wire::BoxArray& boxes, int i, Kept* kept) {
+    const size_t at = static_cast<size_t>(i) * k;
+    if (boxes.lo32_size() > 0) {
+      if (static_cast<size_t>(boxes.lo32_size()) < at + k ||
+          static_cast<size_t>(boxes.hi32_size()) < at + k) {
+        return false;
+      }
+      CopyCorner(boxes.lo32(), at, k, &kept->lo);
+      CopyCorner(boxes.hi32(), at, k, &kept->hi);
+    } else {
+      if (static_cast<size_t>(boxes.lo64_size()) < at + k ||
+          static_cast<size_t>(boxes.hi64_size()) < at + k) {
+        return false;
+      }
+      CopyCorner(boxes.lo64(), at, k, &kept->lo);
+      CopyCorner(boxes.hi64(), at, k, &kept->hi);
+    }
+    return true;
+  };
+  const wire::BoxArray& inserts = batch.inserts();
+  for (int i = 0; i < inserts.ids_size(); ++i) {
+    Kept kept;
+    if (!corners(inserts, i, &kept)) continue;  // malformed: the daemon refused it too
+    if (inserts.static_flags_size() > i) kept.is_static = inserts.static_flags(i);
+    if (inserts.category_size() > i) kept.category = inserts.category(i);
+    if (inserts.mask_size() > i) kept.mask = inserts.mask(i);
+    kept.has_attributes =
+        inserts.static_flags_size() > 0 || inserts.category_size() > 0 || inserts.mask_size() > 0;
+    kept_[inserts.ids(i)] = kept;
+  }
+  const wire::BoxArray& updates = batch.updates();
+  for (int i = 0; i < updates.ids_size(); ++i) {
+    auto it = kept_.find(updates.ids(i));
+    if (it == kept_.end()) continue;  // unknown to us: the daemon refuses it too
+    Kept moved = it->second;
+    if (corners(updates, i, &moved)) it->second = moved;
+  }
+}
+
+Status UpdatePublisher::Maintain() {
+  if (!options_.restate_on_restart) return Status::Ok();
+  size_t taken = 0;
+  Status s = status_.Take(
+      64,
+      [&](const dds::Received& r) {
+        if (!status_msg_.ParseFromArray(r.payload.data(), static_cast<int>(r.payload.size()))) {
+          return;
+        }
+        const uint64_t epoch = status_msg_.epoch();
+        if (epoch == 0 || epoch == epoch_) return;
+        if (std::find(retired_epochs_.begin(), retired_epochs_.end(), epoch) !=
+            retired_epochs_.end()) {
+          return;  // a late report of a daemon already replaced
+        }
+        if (status_msg_.health() == wire::STOPPING) {
+          retired_epochs_.push_back(epoch);
+          return;
+        }
+        // A daemon not seen before. The first one needs a restate only if objects were
+        // published before its epoch was known (they may have gone to an earlier daemon).
+        if (epoch_ != 0) retired_epochs_.push_back(epoch_);
+        if (epoch_ != 0 || published_before_epoch_) restate_due_ = true;
+        epoch_ = epoch;
+      },
+      &taken);
+  if (!s.ok()) return s;
+  if (retired_epochs_.size() > 64) retired_epochs_.erase(retired_epochs_.begin());
+  if (restate_due_) return Restate();
+  return Status::Ok();
+}
+
+Status UpdatePublisher::Restate() {
+  const uint32_t k = dim_;
+  auto it = kept_.begin();
+  while (it != kept_.end()) {
+    restate_batch_.Clear();
+    restate_batch_.set_restate(true);
+    restate_batch_.set_dim(k);
+    restate_batch_.set_frame(frame_);
+    wire::BoxArray* inserts = restate_batch_.mutable_inserts();
+    bool attributes = false;
+    const auto from = it;
+    for (uint32_t n = 0; n < options_.restate_batch_items && it != kept_.end(); ++n, ++it) {
+      inserts->add_ids(it->first);
+      for (uint32_t a = 0; a < k; ++a) inserts->add_lo64(it->second.lo[a]);
+      for (uint32_t a = 0; a < k; ++a) inserts->add_hi64(it->second.hi[a]);
+      attributes = attributes || it->second.has_attributes;
+    }
+    if (attributes) {  // every attribute array is empty or complete
+      for (auto j = from; j != it; ++j) {
+        inserts->add_static_flags(j->second.is_static);
+        inserts->add_category(j->second.category);
+        inserts->add_mask(j->second.mask);
+      }
+    }
+    if (Status s = Stamp(&restate_batch_); !s.ok()) return s;  // due again next time
+  }
+  restate_due_ = false;
+  ++restates_;
+  return Status::Ok();
 }
 
 }  // namespace bp::client

@@ -248,6 +248,13 @@ class DifferentialTest : public ::testing::Test {
 
   void Check(int frame) {
     SCOPED_TRACE("frame " + std::to_string(frame));
+    if (frame % 10 == 0) {  // the present keys, with this frame's calls still buffered
+      std::set<uint64_t> keys;
+      engine_->ForEachObject([&](uint64_t key) { EXPECT_TRUE(keys.insert(key).second) << key; });
+      std::set<uint64_t> expected;
+      for (const auto& entry : model_.boxes()) expected.insert(entry.first);
+      ASSERT_EQ(keys, expected);
+    }
     RecordingSink<uint64_t> sink;
     engine_->Query(sink);
     std::vector<std::pair<uint64_t, uint64_t>> collides, uncollides;

@@ -75,6 +75,7 @@ void ExpectSameSettings(const Config& a, const Config& b) {
   EXPECT_EQ(a.frames, b.frames);
   EXPECT_EQ(a.limits, b.limits);
   EXPECT_EQ(a.logging, b.logging);
+  EXPECT_EQ(a.producers, b.producers);
 }
 
 // A fresh directory under the system's temporary directory, removed at the end of the test.
@@ -216,7 +217,8 @@ const RuleCase kRuleCases[] = {
     {"ScalarForSection", "frames: tick\n",
      "cfg.yaml:1:9: frames: expected a mapping (keys: boundary, tick_ms), got the scalar 'tick'"},
     {"SequenceForDocument", "- engine\n- dds\n",
-     "cfg.yaml:1:1: (document): expected a mapping (keys: engine, dds, frames, limits, logging), "
+     "cfg.yaml:1:1: (document): expected a mapping (keys: engine, dds, frames, limits, logging, "
+     "producers), "
      "got a sequence"},
     {"SequenceForInteger", "engine:\n  threads: [1]\n",
      "cfg.yaml:2:12: engine.threads: expected an integer, got a sequence"},
@@ -656,10 +658,11 @@ TEST(ConfigToYamlTest, RoundTripsANonDefaultConfig) {
   c.dds.update_queue = 4096;
   c.frames.boundary = FrameBoundary::kTick;
   c.frames.tick_ms = 1.0 / 3.0;
-  c.limits = {1u << 10, 12345, std::numeric_limits<uint64_t>::max(), 7, 0};
+  c.limits = {1u << 10, 12345, std::numeric_limits<uint64_t>::max(), 7, 0, 0};
   c.logging.level = "trace";
   c.logging.summary_interval_s = 1e-3;
   c.logging.file = "null";
+  c.producers.lease_s = 0.25;
 
   std::string yaml = ConfigToYaml(c);
   Config back = ParseOk(yaml);
@@ -676,10 +679,11 @@ TEST(ConfigToYamlTest, WritesEveryKeyPlainWhereUnambiguous) {
   for (const char* line :
        {"engine:\n", "  algorithm: grid_dense\n", "  cell_size: auto\n", "  margin: 0.0\n",
         "  partition: \"\"\n", "  topics:\n", "    events: bp_events\n", "  tick_ms: 16.667\n",
-        "  max_batch_bytes: 67108864\n", "  summary_interval_s: 5.0\n", "  file: \"\"\n"}) {
+        "  max_batch_bytes: 67108864\n", "  summary_interval_s: 5.0\n", "  file: \"\"\n",
+        "producers:\n", "  lease_s: 10.0\n"}) {
     EXPECT_TRUE(Contains(yaml, line)) << line << "---\n" << yaml;
   }
-  EXPECT_EQ(Lines(yaml).size(), 32u) << yaml;  // 5 sections + topics + 26 keys
+  EXPECT_EQ(Lines(yaml).size(), 35u) << yaml;  // 6 sections + topics + 28 keys
 }
 
 TEST(ConfigNames, AreCanonical) {

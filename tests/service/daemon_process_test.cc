@@ -34,17 +34,17 @@ class ScratchDir {
   std::string path_;
 };
 
-// A running broadphased; its stderr goes to a file.
+// A running broadphased (or another binary); its stdout and stderr go to a file.
 class Process {
  public:
-  Process(const std::vector<std::string>& args, const std::string& log_path) {
+  Process(const std::vector<std::string>& args, const std::string& log_path,
+          std::string binary = BROADPHASED) {
     pid_ = fork();
     if (pid_ == 0) {
       const int fd = open(log_path.c_str(), O_WRONLY | O_CREAT | O_TRUNC, 0644);
       dup2(fd, 2);
       dup2(fd, 1);
       std::vector<char*> argv;
-      static std::string binary = BROADPHASED;
       argv.push_back(binary.data());
       for (auto& a : args) argv.push_back(const_cast<char*>(a.c_str()));
       argv.push_back(nullptr);
@@ -93,12 +93,14 @@ std::string WriteConfig(const std::string& dir, const std::string& text) {
   return path;
 }
 
-std::string ConfigText(const service::Config& c) {
+std::string ConfigText(const service::Config& c, double lease_s = 10) {
   return "engine:\n  algorithm: segmented_sap\n  dimension: 3\n"
          "dds:\n  domain: " +
          std::to_string(c.dds.domain) + "\n  cyclone_config: " + c.dds.cyclone_config +
          "\n  partition: " + c.dds.partition +
-         "\nlogging:\n  level: info\n  summary_interval_s: 0.1\n";
+         "\nlogging:\n  level: info\n  summary_interval_s: 0.1\n"
+         "producers:\n  lease_s: " +
+         std::to_string(lease_s) + "\n";
 }
 
 TEST(DaemonProcess, BadConfigIsRefusedWithLineNumbersAndExitStatus2) {
@@ -211,6 +213,173 @@ TEST(DaemonProcess, CheckAndPrintConfig) {
   service::Config parsed;
   Status s = service::ParseConfig(printed, "printed", &parsed);
   EXPECT_TRUE(s.ok()) << s.ToString() << "\n" << printed;
+}
+
+// Issue 8: kill -9 the daemon and start another. The producer keeps its objects
+// (restate_on_restart) and restates them to the new daemon when it sees its epoch; a subscriber
+// sees the epoch change, resyncs from a snapshot, and ends with exactly the oracle's set.
+TEST(DaemonProcess, AKilledDaemonIsReplacedAndRestatingProducersRestoreTheExactSet) {
+  ScratchDir scratch;
+  const std::string& dir = scratch.path();
+  service::Config c = TestConfig(kDomain);
+  const std::string config = WriteConfig(dir, ConfigText(c));
+  auto daemon =
+      std::make_unique<Process>(std::vector<std::string>{"--config", config}, dir + "/log1");
+
+  std::unique_ptr<client::Connection> connection;
+  BP_ASSERT_OK(client::Connection::Open(ClientOptions(c), &connection));
+  RejectionCollector status(*connection);
+  std::unique_ptr<client::EventSubscriber> sub;
+  BP_ASSERT_OK(client::EventSubscriber::Create(*connection, 1000, &sub));
+  std::unique_ptr<client::SnapshotRequester> requests;
+  BP_ASSERT_OK(client::SnapshotRequester::Create(*connection, &requests));
+  BP_ASSERT_OK(sub->WaitForDaemon(20s));
+  BP_ASSERT_OK(requests->WaitForDaemon(20s));
+  client::PublisherOptions options;
+  options.restate_on_restart = true;
+  std::unique_ptr<client::UpdatePublisher> pub;
+  BP_ASSERT_OK(client::UpdatePublisher::Create(*connection, 4, options, &pub));
+  BP_ASSERT_OK(pub->WaitForDaemon(20s));
+  const uint64_t first_epoch = pub->daemon_epoch();
+  client::OverlapView view;
+
+  SceneParams params;
+  params.n = 500;
+  params.moving = 50;
+  params.churn = 5;
+  params.density = 0.2;
+  params.seed = 44;
+  Scene scene(params);
+  Oracle<3> oracle;
+  PairList unc, col;
+  FrameOps ops;
+  ops.inserts = scene.Initial();
+  auto publish = [&](uint64_t frame) {
+    oracle.Apply(4, ops);
+    oracle.Query(&unc, &col);
+    wire::UpdateBatch batch;
+    client::FillSceneFrame(ops, 3, &batch);
+    batch.set_frame(frame);
+    batch.set_end_of_frame(true);
+    // A reliable writer waits for the killed daemon's reader until Cyclone's participant
+    // lease (2 s in the loopback configuration) declares it dead: retry, as bpctl scene does.
+    Status s = pub->Publish(&batch);
+    for (int retry = 0; retry < 3 && s.code() == StatusCode::kDeadlineExceeded; ++retry) {
+      s = pub->Publish(&batch);
+    }
+    BP_ASSERT_OK(s);
+    scene.NextFrame(&ops);
+  };
+  for (uint64_t frame = 1; frame <= 5; ++frame) {
+    publish(frame);
+    ASSERT_TRUE(SyncTo(*sub, *requests, view, frame)) << view.last_loss();
+  }
+  ASSERT_EQ(view.SortedPairs(), oracle.Pairs());
+  ASSERT_GT(oracle.Pairs().size(), 50u);
+
+  daemon->Signal(SIGKILL);
+  EXPECT_EQ(daemon->Wait(), -1) << "death by signal";
+  daemon = std::make_unique<Process>(std::vector<std::string>{"--config", config}, dir + "/log2");
+  // The new daemon's first report (its epoch), then its reader matched to the producer (the
+  // killed daemon's reader may still count until Cyclone's participant lease expires).
+  ASSERT_TRUE(status.WaitUntil(
+      [&](const wire::DaemonStatus& r) { return r.epoch() != 0 && r.epoch() != first_epoch; },
+      20s));
+  (void)pub->WaitForReaders(2, 3s);
+  for (uint64_t frame = 1; frame <= 5; ++frame) {
+    publish(frame);
+    std::this_thread::sleep_for(20ms);
+  }
+  ASSERT_TRUE(SyncUntil(*sub, *requests, view, [&](const client::OverlapView& v) {
+    return v.epoch() != first_epoch && v.frame() == 5;
+  })) << view.last_loss();
+  EXPECT_EQ(view.SortedPairs(), oracle.Pairs());
+  EXPECT_NE(view.epoch(), first_epoch);
+  EXPECT_EQ(view.restarts(), 1u);
+  EXPECT_EQ(view.contradictions(), 0u);
+  EXPECT_EQ(pub->restates(), 1u);
+  daemon->Signal(SIGTERM);
+  EXPECT_EQ(daemon->Wait(), 0);
+  const std::string log = ReadFile(dir + "/log2");
+  EXPECT_NE(log.find("snapshot of frame"), std::string::npos) << log;
+}
+
+// Issue 8: kill -9 a producer (bpctl scene). Its writer's liveliness lease (1 s) runs out, then
+// the daemon's producers.lease_s (1 s); its objects are erased and every pair they were in is
+// uncollided, exactly once.
+TEST(DaemonProcess, AKilledProducersObjectsAreErasedAfterTheLease) {
+  ScratchDir scratch;
+  const std::string& dir = scratch.path();
+  service::Config c = TestConfig(kDomain);
+  const std::string config = WriteConfig(dir, ConfigText(c, /*lease_s=*/1.0));
+  Process daemon({"--config", config}, dir + "/log");
+
+  std::unique_ptr<client::Connection> connection;
+  BP_ASSERT_OK(client::Connection::Open(ClientOptions(c), &connection));
+  RejectionCollector status(*connection);
+  std::unique_ptr<client::EventSubscriber> sub;
+  BP_ASSERT_OK(client::EventSubscriber::Create(*connection, 1000, &sub));
+  std::unique_ptr<client::SnapshotRequester> requests;
+  BP_ASSERT_OK(client::SnapshotRequester::Create(*connection, &requests));
+  BP_ASSERT_OK(sub->WaitForDaemon(20s));
+  BP_ASSERT_OK(requests->WaitForDaemon(20s));
+  // Producer 3 rests in this process; producer 8 is bpctl scene, killed below.
+  std::unique_ptr<client::UpdatePublisher> resting;
+  BP_ASSERT_OK(client::UpdatePublisher::Create(*connection, 3, 5000ms, &resting));
+  BP_ASSERT_OK(resting->WaitForDaemon(20s));
+  wire::UpdateBatch big;
+  big.set_dim(3);
+  big.set_end_of_frame(true);
+  client::AddBox<3>(big.mutable_inserts(), 1,
+                    Box<3, float>{{-1e6f, -1e6f, -1e6f}, {1e6f, 1e6f, 1e6f}});
+  BP_ASSERT_OK(resting->Publish(&big));
+
+  Process scene({"--config", config, "scene", "-n", "300", "--rate", "50", "--producer", "8",
+                 "--seed", "5", "--quiet"},
+                dir + "/scene.log", BPCTL);
+  client::OverlapView view;
+  // Running: the scene's 300 objects and the big box, all synced.
+  const auto deadline = std::chrono::steady_clock::now() + 30s;
+  auto asked = std::chrono::steady_clock::time_point{};
+  uint64_t objects = 0;
+  while (!(view.synced() && objects == 301 && view.size() > 300)) {
+    ASSERT_LT(std::chrono::steady_clock::now(), deadline) << ReadFile(dir + "/scene.log");
+    if (view.wants_snapshot() && std::chrono::steady_clock::now() - asked > 500ms) {
+      BP_ASSERT_OK(requests->Request("test"));
+      asked = std::chrono::steady_clock::now();
+    }
+    std::vector<wire::EventBatch> parts;
+    BP_ASSERT_OK(sub->Poll(50ms, &parts));
+    for (const auto& p : parts) {
+      view.Apply(p);
+      objects = p.objects();
+    }
+  }
+  scene.Signal(SIGKILL);
+  const auto killed = std::chrono::steady_clock::now();
+  EXPECT_EQ(scene.Wait(), -1);
+  // Every pair of producer 8 ends: the set keeps only producer 3's, which is none.
+  while (!(view.synced() && objects == 1)) {
+    ASSERT_LT(std::chrono::steady_clock::now(), killed + 20s) << "the objects were not erased";
+    std::vector<wire::EventBatch> parts;
+    BP_ASSERT_OK(sub->Poll(50ms, &parts));
+    for (const auto& p : parts) {
+      view.Apply(p);
+      objects = p.objects();
+    }
+  }
+  const double after =
+      std::chrono::duration<double>(std::chrono::steady_clock::now() - killed).count();
+  EXPECT_GE(after, 1.0) << "erased before producers.lease_s";
+  EXPECT_EQ(view.size(), 0u);
+  EXPECT_EQ(view.contradictions(), 0u) << "an uncollide of a pair the view did not hold";
+  EXPECT_EQ(view.resyncs(), 0u);
+  ASSERT_TRUE(status.WaitUntil(
+      [](const wire::DaemonStatus& r) { return r.producers_expired() == 1 && r.objects() == 1; }));
+  daemon.Signal(SIGTERM);
+  EXPECT_EQ(daemon.Wait(), 0);
+  const std::string log = ReadFile(dir + "/log");
+  EXPECT_NE(log.find("producer 8: its writer has not been alive"), std::string::npos) << log;
 }
 
 }  // namespace

@@ -542,28 +542,6 @@ TEST(Daemon, DoublesToAFloatEngineRoundOutward) {
             std::string::npos);
 }
 
-// Drives an OverlapView from a subscriber until it is synced at `frame` (asking for a snapshot
-// when it wants one, and again every 500 ms while none arrives).
-bool SyncTo(client::EventSubscriber& sub, client::SnapshotRequester& requests,
-            client::OverlapView& view, uint64_t frame, std::chrono::milliseconds timeout = 15s) {
-  const auto deadline = std::chrono::steady_clock::now() + timeout;
-  auto asked = std::chrono::steady_clock::time_point{};
-  while (!(view.synced() && view.frame() == frame)) {
-    const auto now = std::chrono::steady_clock::now();
-    if (now > deadline) return false;
-    if (view.wants_snapshot() && now - asked > 500ms) {
-      EXPECT_TRUE(requests.Request("test").ok());
-      asked = now;
-    }
-    std::vector<wire::EventBatch> parts;
-    if (!sub.Poll(50ms, &parts).ok()) return false;
-    for (const auto& p : parts) {
-      if (view.Apply(p)) asked = {};  // lost: ask at once
-    }
-  }
-  return true;
-}
-
 // Issue 8: a subscriber that joins late, one that falls behind (KEEP_LAST 12 overwrites what it
 // does not read: a gap), and the first one across a daemon restart (a new epoch), each rebuild
 // the exact overlap set from a snapshot and keep it exact frame by frame. Snapshots are split into
@@ -736,5 +714,179 @@ TEST(Daemon, ClientLibraryRoundTripWithACallback) {
   sub->StopListening();
   sub->StopListening();  // idempotent
 }
+// Issue 8: a producer that goes away (here its writer is deleted; a killed process loses its
+// liveliness, see daemon_process_test.cc) has its objects erased after producers.lease_s, with
+// one frame of uncollides for every pair they were in, its own pairs and the others'.
+TEST(Daemon, AProducerThatGoesAwayHasItsObjectsErasedAfterTheLease) {
+  service::Config config = TestConfig(kDomain);
+  config.producers.lease_s = 0.5;
+  InProcessDaemon daemon(config);
+  Client client(config);
+  auto stays = client.Publisher(2);
+  std::chrono::steady_clock::time_point gone;
+  {
+    std::unique_ptr<client::Connection> own;  // its own participant, as another process has
+    BP_ASSERT_OK(client::Connection::Open(ClientOptions(config), &own));
+    std::unique_ptr<client::UpdatePublisher> leaver;
+    BP_ASSERT_OK(client::UpdatePublisher::Create(*own, 1, 5000ms, &leaver));
+    BP_ASSERT_OK(leaver->WaitForDaemon(10s));
+    wire::UpdateBatch b1 = InsertBatch({{10, Cube(0)}, {11, Cube(0.5f)}});
+    BP_ASSERT_OK(leaver->Publish(&b1));
+    ExpectFrame(*client.events, 1, {}, {{service::GlobalKey(1, 10), service::GlobalKey(1, 11)}});
+    wire::UpdateBatch b2 = InsertBatch({{20, Cube(0.25f)}, {21, Cube(40)}});
+    BP_ASSERT_OK(stays->Publish(&b2));
+    ExpectFrame(*client.events, 2, {},
+                {{service::GlobalKey(1, 10), service::GlobalKey(2, 20)},
+                 {service::GlobalKey(1, 11), service::GlobalKey(2, 20)}});
+    gone = std::chrono::steady_clock::now();
+  }
+  FrameEvents fe;
+  ASSERT_TRUE(client.events->WaitFrame(3, &fe, 10s)) << "producer 1's objects were not erased";
+  const double waited =
+      std::chrono::duration<double>(std::chrono::steady_clock::now() - gone).count();
+  EXPECT_GE(waited, 0.45) << "erased before the lease ran out";
+  EXPECT_EQ(fe.uncollide, (PairList{{service::GlobalKey(1, 10), service::GlobalKey(1, 11)},
+                                    {service::GlobalKey(1, 10), service::GlobalKey(2, 20)},
+                                    {service::GlobalKey(1, 11), service::GlobalKey(2, 20)}}));
+  EXPECT_TRUE(fe.collide.empty());
+  EXPECT_EQ(fe.last.objects(), 2u);
+  EXPECT_EQ(fe.last.overlaps(), 0u);
+  EXPECT_EQ(daemon.daemon().producers_expired(), 1u);
+  // Producer 2 is untouched and its objects still pair with newcomers.
+  wire::UpdateBatch b3 = InsertBatch({{22, Cube(40.5f)}});
+  BP_ASSERT_OK(stays->Publish(&b3));
+  ExpectFrame(*client.events, 4, {}, {{service::GlobalKey(2, 21), service::GlobalKey(2, 22)}});
+  // Its status report counts the expiry.
+  ASSERT_TRUE(client.status->WaitUntil(
+      [](const wire::DaemonStatus& r) { return r.producers_expired() == 1 && r.epoch() != 0; }));
+}
+
+// Issue 8: with producers.lease_s = 0 the objects of a producer that left stay.
+TEST(Daemon, WithoutALeaseTheObjectsOfAProducerThatLeftStay) {
+  service::Config config = TestConfig(kDomain);
+  config.producers.lease_s = 0;
+  InProcessDaemon daemon(config);
+  Client client(config);
+  {
+    auto leaver = client.Publisher(1);
+    wire::UpdateBatch b1 = InsertBatch({{10, Cube(0)}, {11, Cube(0.5f)}});
+    BP_ASSERT_OK(leaver->Publish(&b1));
+    ExpectFrame(*client.events, 1, {}, {{service::GlobalKey(1, 10), service::GlobalKey(1, 11)}});
+  }
+  FrameEvents fe;
+  EXPECT_FALSE(client.events->WaitFrame(2, &fe, 1500ms)) << "a frame without any update";
+  EXPECT_EQ(daemon.daemon().producers_expired(), 0u);
+  // A new writer of producer 1 is a new incarnation: what the old one left is erased first.
+  auto second = client.Publisher(1);
+  wire::UpdateBatch b2 = InsertBatch({{11, Cube(0.6f)}, {12, Cube(0.7f)}});
+  BP_ASSERT_OK(second->Publish(&b2));
+  // Erase of 10 and 11, insert of 11 and 12 in one frame: (10, 11) ends, (11, 12) begins.
+  ExpectFrame(*client.events, 2, {{service::GlobalKey(1, 10), service::GlobalKey(1, 11)}},
+              {{service::GlobalKey(1, 11), service::GlobalKey(1, 12)}});
+  EXPECT_EQ(daemon.daemon().producers_expired(), 1u);
+}
+
+// Issue 8: the daemon restarts empty; a producer that keeps its objects (restate_on_restart)
+// sends them again when it sees the new epoch, and a subscriber's view, resynced from a snapshot,
+// equals the oracle's set. (daemon_process_test.cc kills the daemon with SIGKILL instead.)
+TEST(Daemon, ARestartedDaemonGetsTheObjectsBackFromARestatingProducer) {
+  service::Config config = TestConfig(kDomain);
+  auto daemon = std::make_unique<InProcessDaemon>(config);
+  Client client(config);
+  client::PublisherOptions options;
+  options.restate_on_restart = true;
+  options.restate_batch_items = 150;  // several restate batches
+  std::unique_ptr<client::UpdatePublisher> pub;
+  BP_ASSERT_OK(client::UpdatePublisher::Create(*client.connection, 1, options, &pub));
+  BP_ASSERT_OK(pub->WaitForDaemon(10s));
+  const uint64_t first_epoch = pub->daemon_epoch();
+  ASSERT_NE(first_epoch, 0u);
+  std::unique_ptr<client::EventSubscriber> sub;
+  BP_ASSERT_OK(client::EventSubscriber::Create(*client.connection, 1000, &sub));
+  std::unique_ptr<client::SnapshotRequester> requests;
+  BP_ASSERT_OK(client::SnapshotRequester::Create(*client.connection, &requests));
+  BP_ASSERT_OK(sub->WaitForDaemon(10s));
+  BP_ASSERT_OK(requests->WaitForDaemon(10s));
+  client::OverlapView view;
+
+  Scene scene(SmallScene(21));
+  Oracle<3> oracle;
+  PairList unc, col;
+  FrameOps ops = InitialOps(scene);
+  for (uint64_t frame = 1; frame <= 5; ++frame) {
+    if (frame > 1) scene.NextFrame(&ops);
+    oracle.Apply(1, ops);
+    oracle.Query(&unc, &col);
+    PublishFrame(*pub, ops, 3, frame, 1);
+    ASSERT_TRUE(SyncTo(*sub, *requests, view, frame)) << view.last_loss();
+  }
+  EXPECT_EQ(view.SortedPairs(), oracle.Pairs());
+  EXPECT_EQ(pub->kept_objects(), oracle.Size());
+
+  BP_ASSERT_OK(daemon->Stop());
+  daemon.reset();
+  daemon = std::make_unique<InProcessDaemon>(config);
+  BP_ASSERT_OK(requests->WaitForDaemon(10s));
+  BP_ASSERT_OK(pub->WaitForDaemon(10s));
+  for (uint64_t frame = 1; frame <= 5; ++frame) {
+    scene.NextFrame(&ops);
+    oracle.Apply(1, ops);
+    oracle.Query(&unc, &col);
+    PublishFrame(*pub, ops, 3, frame, 1);
+    std::this_thread::sleep_for(20ms);
+  }
+  // The restate closes no frame; the five published ones are frames 1..5 of the new daemon.
+  ASSERT_TRUE(SyncUntil(*sub, *requests, view, [&](const client::OverlapView& v) {
+    return v.epoch() != first_epoch && v.frame() == 5;
+  })) << view.last_loss();
+  EXPECT_EQ(view.SortedPairs(), oracle.Pairs());
+  EXPECT_NE(view.epoch(), first_epoch);
+  EXPECT_EQ(view.restarts(), 1u);
+  EXPECT_EQ(view.contradictions(), 0u);
+  EXPECT_EQ(pub->restates(), 1u);
+  EXPECT_NE(pub->daemon_epoch(), first_epoch);
+  EXPECT_EQ(pub->kept_objects(), oracle.Size());
+  // No insert was refused as a duplicate: restated objects replace what the daemon holds.
+  client.status->Collect(300ms);
+  for (const auto& r : client.status->rejections()) {
+    EXPECT_NE(r.reason(), wire::DUPLICATE_INSERT) << r.message();
+  }
+}
+
+// Issue 8: a subscriber that keeps asking gets at most one snapshot per
+// limits.snapshot_interval_ms, and a request in between is served late, not dropped.
+TEST(Daemon, SnapshotRequestsAreRateLimited) {
+  service::Config config = TestConfig(kDomain);
+  config.limits.snapshot_interval_ms = 400;
+  InProcessDaemon daemon(config);
+  Client client(config);
+  auto pub = client.Publisher(1);
+  wire::UpdateBatch b1 = InsertBatch({{10, Cube(0)}, {11, Cube(0.5f)}});
+  BP_ASSERT_OK(pub->Publish(&b1));
+  ExpectFrame(*client.events, 1, {}, {{service::GlobalKey(1, 10), service::GlobalKey(1, 11)}});
+  std::unique_ptr<client::SnapshotRequester> requests;
+  BP_ASSERT_OK(client::SnapshotRequester::Create(*client.connection, &requests));
+  BP_ASSERT_OK(requests->WaitForDaemon(10s));
+  const auto start = std::chrono::steady_clock::now();
+  while (std::chrono::steady_clock::now() - start < 1000ms) {
+    BP_ASSERT_OK(requests->Request("flood"));
+    std::this_thread::sleep_for(10ms);
+  }
+  const double seconds =
+      std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
+  // The last request is served within an interval.
+  std::this_thread::sleep_for(600ms);
+  const uint64_t snapshots = daemon.daemon().snapshots();
+  EXPECT_GE(snapshots, 2u);
+  EXPECT_LE(static_cast<double>(snapshots), seconds / 0.4 + 2.0) << "about 100 requests";
+  // A fresh subscriber still syncs to the exact set.
+  std::unique_ptr<client::EventSubscriber> sub;
+  BP_ASSERT_OK(client::EventSubscriber::Create(*client.connection, 100, &sub));
+  BP_ASSERT_OK(sub->WaitForDaemon(10s));
+  client::OverlapView view;
+  ASSERT_TRUE(SyncTo(*sub, *requests, view, 1)) << view.last_loss();
+  EXPECT_EQ(view.SortedPairs(), (PairList{{service::GlobalKey(1, 10), service::GlobalKey(1, 11)}}));
+}
+
 }  // namespace
 }  // namespace bp::test

@@ -301,6 +301,81 @@ TEST(EngineHost, EraseAndReinsertInOneBatchIsAnUpdate) {
             (PairList{{GlobalKey(1, 1), GlobalKey(1, 3)}, {GlobalKey(1, 1), GlobalKey(1, 4)}}));
 }
 
+TEST(EngineHost, RestateReplacesLiveObjectsAndInsertsTheOthers) {
+  for (const char* algorithm : {"segmented_sap", "grid_dense", "brute_force"}) {
+    SCOPED_TRACE(algorithm);
+    auto host = MakeHost(algorithm, 3, CoordinateType::kFloat, 3);
+    wire::UpdateBatch a = Batch(1, 3);
+    AddBox(a.mutable_inserts(), 1, {0, 0, 0}, {1, 1, 1});
+    AddBox(a.mutable_inserts(), 2, {0.5, 0, 0}, {1.5, 1, 1});
+    ASSERT_TRUE(Apply(*host, a).rejects.empty());
+    std::vector<uint64_t> unc, col;
+    host->Query(&unc, &col);
+    EXPECT_EQ(ToPairs(col), (PairList{{GlobalKey(1, 1), GlobalKey(1, 2)}}));
+    // A restate: 1 moved away, 2 unchanged, 3 new, at capacity (3): no DUPLICATE_INSERT, no
+    // CAPACITY for the live ones.
+    wire::UpdateBatch r = Batch(1, 3);
+    r.set_restate(true);
+    AddBox(r.mutable_inserts(), 1, {5, 0, 0}, {6, 1, 1});
+    AddBox(r.mutable_inserts(), 2, {0.5, 0, 0}, {1.5, 1, 1});
+    AddBox(r.mutable_inserts(), 3, {5.5, 0, 0}, {6.5, 1, 1});
+    Outcome out = Apply(*host, r);
+    EXPECT_TRUE(out.rejects.empty()) << out.rejects[0].message;
+    EXPECT_EQ(out.counts.updates, 2u);
+    EXPECT_EQ(out.counts.inserts, 1u);
+    EXPECT_EQ(host->Objects(), 3u);
+    host->Query(&unc, &col);
+    EXPECT_EQ(ToPairs(unc), (PairList{{GlobalKey(1, 1), GlobalKey(1, 2)}}));
+    EXPECT_EQ(ToPairs(col), (PairList{{GlobalKey(1, 1), GlobalKey(1, 3)}}));
+    // Restating with other attributes rekeys: the pair with 1 ends when 3's mask rejects it.
+    wire::UpdateBatch m = Batch(1, 3);
+    m.set_restate(true);
+    AddBox(m.mutable_inserts(), 3, {5.5, 0, 0}, {6.5, 1, 1});
+    m.mutable_inserts()->add_category(2);
+    m.mutable_inserts()->add_mask(2);
+    EXPECT_TRUE(Apply(*host, m).rejects.empty());
+    host->Query(&unc, &col);
+    EXPECT_EQ(ToPairs(unc), (PairList{{GlobalKey(1, 1), GlobalKey(1, 3)}}));
+    EXPECT_TRUE(col.empty());
+    // Without the flag the same insert is a duplicate (below capacity: 1 is erased first).
+    wire::UpdateBatch d = Batch(1, 3);
+    d.add_erases(1);
+    AddBox(d.mutable_inserts(), 2, {0, 0, 0}, {1, 1, 1});
+    out = Apply(*host, d);
+    ASSERT_EQ(out.rejects.size(), 1u);
+    EXPECT_EQ(out.rejects[0].reason, wire::DUPLICATE_INSERT);
+  }
+}
+
+TEST(EngineHost, EraseProducerErasesThatProducersObjectsOnly) {
+  auto host = MakeHost("grid_dense", 2, CoordinateType::kDouble);
+  for (uint32_t producer : {1u, 2u, 3u}) {
+    wire::UpdateBatch b = Batch(producer, 2);
+    for (uint64_t id = 0; id < 4; ++id) {
+      AddBox(b.mutable_inserts(), id, {0.1 * static_cast<double>(id), 0}, {1, 1});
+    }
+    ASSERT_TRUE(Apply(*host, b).rejects.empty());
+  }
+  std::vector<uint64_t> unc, col;
+  host->Query(&unc, &col);
+  EXPECT_EQ(host->Overlaps(), 66u);  // 12 boxes, all overlapping
+  // Producer 2: 4 live objects, plus one inserted since the query (buffered) and one erased.
+  wire::UpdateBatch more = Batch(2, 2);
+  more.add_erases(3);
+  AddBox(more.mutable_inserts(), 9, {0, 0}, {1, 1});
+  ASSERT_TRUE(Apply(*host, more).rejects.empty());
+  EXPECT_EQ(host->EraseProducer(2), 4u);
+  EXPECT_EQ(host->Objects(), 8u);
+  host->Query(&unc, &col);
+  EXPECT_EQ(unc.size() / 2, 66u - 28u);  // every pair with one of producer 2's 4 live objects
+  EXPECT_TRUE(col.empty());
+  for (size_t i = 0; i < unc.size(); i += 2) {
+    EXPECT_TRUE((unc[i] >> kProducerShift) == 2 || (unc[i + 1] >> kProducerShift) == 2);
+  }
+  EXPECT_EQ(host->EraseProducer(2), 0u);
+  EXPECT_EQ(host->Overlaps(), 28u);
+}
+
 TEST(EngineHost, FiltersMatchABruteForceFilteredOracle) {
   std::mt19937_64 rng(5);
   auto host = MakeHost("segmented_sap", 2, CoordinateType::kDouble);

@@ -153,18 +153,24 @@ class RejectionCollector {
   client::StatusSubscriber& subscriber() { return *sub_; }
   /// Waits until at least n rejections have arrived in total.
   bool WaitFor(size_t n, std::chrono::milliseconds timeout = 10s) {
-    const auto deadline = std::chrono::steady_clock::now() + timeout;
-    while (rejections_.size() < n) {
-      if (std::chrono::steady_clock::now() > deadline) return false;
-      std::vector<wire::DaemonStatus> reports;
-      if (!sub_->Poll(50ms, &reports).ok()) return false;
-      for (auto& r : reports) {
-        for (auto& j : r.rejections()) rejections_.push_back(j);
-        not_listed_ += r.rejections_not_listed();
-        reports_.push_back(r);
-      }
-    }
-    return true;
+    return PollUntil([&] { return rejections_.size() >= n; }, timeout);
+  }
+  /// Waits until some report (received now or before) satisfies pred.
+  bool WaitUntil(const std::function<bool(const wire::DaemonStatus&)>& pred,
+                 std::chrono::milliseconds timeout = 10s) {
+    size_t checked = 0;
+    return PollUntil(
+        [&] {
+          for (; checked < reports_.size(); ++checked) {
+            if (pred(reports_[checked])) return true;
+          }
+          return false;
+        },
+        timeout);
+  }
+  /// Collects whatever arrives for the given time.
+  void Collect(std::chrono::milliseconds duration) {
+    (void)PollUntil([] { return false; }, duration);
   }
   const std::vector<wire::Rejection>& rejections() const { return rejections_; }
   const std::vector<wire::DaemonStatus>& reports() const { return reports_; }
@@ -178,6 +184,21 @@ class RejectionCollector {
   }
 
  private:
+  bool PollUntil(const std::function<bool()>& done, std::chrono::milliseconds timeout) {
+    const auto deadline = std::chrono::steady_clock::now() + timeout;
+    while (!done()) {
+      if (std::chrono::steady_clock::now() > deadline) return false;
+      std::vector<wire::DaemonStatus> reports;
+      if (!sub_->Poll(50ms, &reports).ok()) return false;
+      for (auto& r : reports) {
+        for (auto& j : r.rejections()) rejections_.push_back(j);
+        not_listed_ += r.rejections_not_listed();
+        reports_.push_back(r);
+      }
+    }
+    return true;
+  }
+
   std::unique_ptr<client::StatusSubscriber> sub_;
   std::vector<wire::Rejection> rejections_;
   std::vector<wire::DaemonStatus> reports_;
@@ -257,5 +278,38 @@ class Oracle {
  private:
   BruteForce<K, float, uint64_t> engine_;
 };
+
+/// Drives an OverlapView from a subscriber until done(view) holds while it is synced (asking for
+/// a snapshot when it wants one, and again every 500 ms while none arrives).
+inline bool SyncUntil(client::EventSubscriber& sub, client::SnapshotRequester& requests,
+                      client::OverlapView& view,
+                      const std::function<bool(const client::OverlapView&)>& done,
+                      std::chrono::milliseconds timeout = 15s) {
+  const auto deadline = std::chrono::steady_clock::now() + timeout;
+  auto asked = std::chrono::steady_clock::time_point{};
+  while (!(view.synced() && done(view))) {
+    const auto now = std::chrono::steady_clock::now();
+    if (now > deadline) return false;
+    if (view.wants_snapshot() && now - asked > 500ms) {
+      EXPECT_TRUE(requests.Request("test").ok());
+      asked = now;
+    }
+    std::vector<wire::EventBatch> parts;
+    if (!sub.Poll(50ms, &parts).ok()) return false;
+    for (const auto& p : parts) {
+      if (view.Apply(p)) asked = {};  // lost: ask at once
+    }
+  }
+  return true;
+}
+
+/// SyncUntil the view is synced at daemon frame `frame` (of the epoch it follows).
+inline bool SyncTo(client::EventSubscriber& sub, client::SnapshotRequester& requests,
+                   client::OverlapView& view, uint64_t frame,
+                   std::chrono::milliseconds timeout = 15s) {
+  return SyncUntil(
+      sub, requests, view, [frame](const client::OverlapView& v) { return v.frame() == frame; },
+      timeout);
+}
 
 }  // namespace bp::test

@@ -81,6 +81,10 @@ class Broadphase {
   virtual void Query(EventSink<Key>& sink) = 0;
   /// Calls f(a, b) with a < b for every overlapping pair as of the last query (any order).
   virtual void ForEachOverlap(const std::function<void(const Key&, const Key&)>& f) const = 0;
+  /// Calls f(key) for every present key: live at the last query and not erased since, or
+  /// inserted since (any order). O(objects); meant for rare whole-set work, such as erasing
+  /// every object of a client that went away.
+  virtual void ForEachObject(const std::function<void(const Key&)>& f) const = 0;
   /// Live objects as of the last query.
   virtual size_t Size() const = 0;
   /// Counters of the engine and of its last query.

@@ -4,7 +4,9 @@
 // QoS (docs/PROTOCOL.md explains the choice):
 //  - updates: reliable, KEEP_ALL, the daemon's reader bounded to `update_queue` samples. A
 //    producer faster than the daemon blocks in dds_write (back-pressure) for at most
-//    `write_timeout`, then gets DeadlineExceeded: updates are never dropped silently.
+//    `write_timeout`, then gets DeadlineExceeded: updates are never dropped silently. Writers
+//    offer AUTOMATIC liveliness with a lease (1 s by default), so the daemon learns that a
+//    producer died and, after `producers.lease_s`, erases its objects.
 //  - events: reliable, KEEP_LAST `event_history` at the daemon, KEEP_LAST `depth` at each
 //    subscriber. A slow subscriber loses the oldest batches (it sees a gap in `sequence`)
 //    instead of growing memory or stalling the daemon.
@@ -46,8 +48,10 @@ Status ReadTextFile(const std::string& path, std::string* out);
 
 /// The QoS of each topic (see the header comment).
 namespace qos {
-/// Updates topic, writer side (producers).
-void UpdatesWriter(dds_qos_t* qos, std::chrono::milliseconds write_timeout);
+/// Updates topic, writer side (producers). AUTOMATIC liveliness with liveliness_lease: the
+/// daemon notices a producer whose process died about this long after it died.
+void UpdatesWriter(dds_qos_t* qos, std::chrono::milliseconds write_timeout,
+                   std::chrono::milliseconds liveliness_lease = std::chrono::milliseconds(1000));
 /// Updates topic, reader side (the daemon), bounded to queue samples.
 void UpdatesReader(dds_qos_t* qos, int32_t queue);
 /// Events topic, writer side (the daemon).

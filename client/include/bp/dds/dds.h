@@ -16,6 +16,7 @@
 #include <cstdint>
 #include <functional>
 #include <memory>
+#include <mutex>
 #include <span>
 #include <string>
 #include <string_view>
@@ -142,13 +143,39 @@ class Writer {
   Entity writer_;
 };
 
+/// The liveliness of the writers a reader matched, as Cyclone reports it change by change
+/// (its liveliness_changed listener). A writer becomes alive when it matches or asserts its
+/// liveliness again, and stops being alive when its liveliness lease expires (its process died or
+/// hung) or when it is deleted. Thread-safe: Cyclone's listener thread records, the owner takes.
+/// It must outlive the reader it was given to.
+class WriterLiveliness {
+ public:
+  struct Change {
+    dds_instance_handle_t writer = 0;
+    bool alive = false;
+  };
+  /// Called (on Cyclone's thread, under the tracker's lock: keep it short) after each recorded
+  /// change, e.g. to wake a waitset. nullptr stops the calls.
+  void SetOnChange(std::function<void()> on_change);
+  /// Moves the changes recorded since the last call into *out, oldest first.
+  void TakeChanges(std::vector<Change>* out);
+
+ private:
+  friend class Reader;
+  static void OnLivelinessChanged(dds_entity_t reader, dds_liveliness_changed_status_t status,
+                                  void* arg);
+  std::mutex mutex_;
+  std::vector<Change> changes_;
+  std::function<void()> on_change_;
+};
+
 /// A reader of envelopes on one topic.
 class Reader {
  public:
   Reader() = default;
-  /// Creates a reader for topic with qos.
+  /// Creates a reader for topic with qos; with liveliness, it records its writers' liveliness.
   static Status Create(const Participant& participant, dds_entity_t topic, const Qos& qos,
-                       Reader* out);
+                       Reader* out, WriterLiveliness* liveliness = nullptr);
   /// Takes up to max envelopes and calls f on each valid one (loaned: the payload is valid only
   /// during the call). Returns the number of valid envelopes, or a negative Status via out.
   Status Take(size_t max, const std::function<void(const Received&)>& f, size_t* out_taken);

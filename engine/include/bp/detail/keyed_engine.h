@@ -233,6 +233,12 @@ class KeyedEngine final : public Broadphase<Core::kDim, typename Core::Coord, Ke
     });
   }
 
+  void ForEachObject(const std::function<void(const Key&)>& f) const override {
+    for (const Slot& slot : slots_) {
+      if (Present(slot)) f(slot.key);
+    }
+  }
+
   size_t Size() const override { return core_.live(); }
 
   Stats GetStats() const override {
