@@ -59,23 +59,21 @@ Status Daemon::Create(const Config& config, std::unique_ptr<Daemon>* out) {
   if (Status s = dds::WaitSet::Create(participant, &d->waitset_); !s.ok()) return s;
   d->liveliness_ = std::make_unique<dds::WriterLiveliness>();
   d->liveliness_->SetOnChange([daemon = d.get()] { daemon->waitset_.Wake(); });
-  if (Status s = dds::Reader::Create(participant, d->connection_->updates_topic(), updates_qos,
-                                     &d->updates_, d->liveliness_.get());
+  if (Status s = d->connection_->CreateReader(client::TopicId::kUpdates, updates_qos, &d->updates_,
+                                              d->liveliness_.get());
+      !s.ok()) {
+    return s;
+  }
+  if (Status s = d->connection_->CreateWriter(client::TopicId::kEvents, events_qos, &d->events_);
+      !s.ok()) {
+    return s;
+  }
+  if (Status s = d->connection_->CreateWriter(client::TopicId::kStatus, status_qos, &d->status_);
       !s.ok()) {
     return s;
   }
   if (Status s =
-          dds::Writer::Create(participant, d->connection_->events_topic(), events_qos, &d->events_);
-      !s.ok()) {
-    return s;
-  }
-  if (Status s =
-          dds::Writer::Create(participant, d->connection_->status_topic(), status_qos, &d->status_);
-      !s.ok()) {
-    return s;
-  }
-  if (Status s = dds::Reader::Create(participant, d->connection_->requests_topic(), requests_qos,
-                                     &d->requests_);
+          d->connection_->CreateReader(client::TopicId::kRequests, requests_qos, &d->requests_);
       !s.ok()) {
     return s;
   }

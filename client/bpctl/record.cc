@@ -18,9 +18,7 @@ int Record(const Common& common, const RecordOptions& options) {
   client::qos::UpdatesReader(qos.get(), common.config.dds.update_queue);
   dds::Reader reader;
   dds::WaitSet waitset;
-  if (Status s =
-          dds::Reader::Create(connection->participant(), connection->updates_topic(), qos, &reader);
-      !s.ok()) {
+  if (Status s = connection->CreateReader(client::TopicId::kUpdates, qos, &reader); !s.ok()) {
     std::fprintf(stderr, "bpctl record: %s\n", s.ToString().c_str());
     return 1;
   }

@@ -66,20 +66,33 @@ Status Connection::Open(const ConnectionOptions& options, std::unique_ptr<Connec
       !s.ok()) {
     return s;
   }
-  if (Status s = c->participant_->CreateTopic(options.topics.updates, &c->updates_); !s.ok()) {
-    return s;
-  }
-  if (Status s = c->participant_->CreateTopic(options.topics.events, &c->events_); !s.ok()) {
-    return s;
-  }
-  if (Status s = c->participant_->CreateTopic(options.topics.status, &c->status_); !s.ok()) {
-    return s;
-  }
-  if (Status s = c->participant_->CreateTopic(options.topics.requests, &c->requests_); !s.ok()) {
-    return s;
-  }
   *out = std::move(c);
   return Status::Ok();
+}
+
+Status Connection::GetTopic(TopicId id, dds_entity_t* out) {
+  const auto index = static_cast<size_t>(id);
+  std::lock_guard<std::mutex> lock(mutex_);
+  if (topics_[index] == 0) {
+    const TopicNames& names = options_.topics;
+    const std::string* name[] = {&names.updates, &names.events, &names.status, &names.requests};
+    if (Status s = participant_->CreateTopic(*name[index], &topics_[index]); !s.ok()) return s;
+  }
+  *out = topics_[index];
+  return Status::Ok();
+}
+
+Status Connection::CreateWriter(TopicId id, const dds::Qos& qos, dds::Writer* out) {
+  dds_entity_t topic = 0;
+  if (Status s = GetTopic(id, &topic); !s.ok()) return s;
+  return dds::Writer::Create(*participant_, topic, qos, out);
+}
+
+Status Connection::CreateReader(TopicId id, const dds::Qos& qos, dds::Reader* out,
+                                dds::WriterLiveliness* liveliness) {
+  dds_entity_t topic = 0;
+  if (Status s = GetTopic(id, &topic); !s.ok()) return s;
+  return dds::Reader::Create(*participant_, topic, qos, out, liveliness);
 }
 
 }  // namespace bp::client

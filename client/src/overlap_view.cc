@@ -87,9 +87,7 @@ Status SnapshotRequester::Create(Connection& connection, std::unique_ptr<Snapsho
   std::unique_ptr<SnapshotRequester> r(new SnapshotRequester());
   dds::Qos qos;
   qos::RequestsWriter(qos.get());
-  if (Status s = dds::Writer::Create(connection.participant(), connection.requests_topic(), qos,
-                                     &r->writer_);
-      !s.ok()) {
+  if (Status s = connection.CreateWriter(TopicId::kRequests, qos, &r->writer_); !s.ok()) {
     return s;
   }
   std::random_device random;

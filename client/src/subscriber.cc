@@ -11,16 +11,14 @@ Status Subscriber<Msg>::Create(Connection& connection, int32_t depth,
                                std::unique_ptr<Subscriber>* out) {
   std::unique_ptr<Subscriber> s(new Subscriber());
   dds::Qos qos;
-  dds_entity_t topic = 0;
+  TopicId topic = TopicId::kStatus;
   if constexpr (std::is_same_v<Msg, wire::EventBatch>) {
     qos::EventsReader(qos.get(), depth);
-    topic = connection.events_topic();
+    topic = TopicId::kEvents;
   } else {
     qos::StatusReader(qos.get(), depth);
-    topic = connection.status_topic();
   }
-  if (Status st = dds::Reader::Create(connection.participant(), topic, qos, &s->reader_);
-      !st.ok()) {
+  if (Status st = connection.CreateReader(topic, qos, &s->reader_); !st.ok()) {
     return st;
   }
   if (Status st = dds::WaitSet::Create(connection.participant(), &s->waitset_); !st.ok()) {

@@ -45,17 +45,13 @@ Status UpdatePublisher::Create(Connection& connection, uint32_t producer,
   p->options_ = options;
   dds::Qos qos;
   qos::UpdatesWriter(qos.get(), options.write_timeout, options.liveliness_lease);
-  if (Status s = dds::Writer::Create(connection.participant(), connection.updates_topic(), qos,
-                                     &p->writer_);
-      !s.ok()) {
+  if (Status s = connection.CreateWriter(TopicId::kUpdates, qos, &p->writer_); !s.ok()) {
     return s;
   }
   if (options.restate_on_restart) {
     dds::Qos status_qos;
     qos::StatusReader(status_qos.get(), 16);
-    if (Status s = dds::Reader::Create(connection.participant(), connection.status_topic(),
-                                       status_qos, &p->status_);
-        !s.ok()) {
+    if (Status s = connection.CreateReader(TopicId::kStatus, status_qos, &p->status_); !s.ok()) {
       return s;
     }
   }

@@ -17,9 +17,11 @@
 // Thread safety: a Connection may be shared by publishers and subscribers on several threads.
 #pragma once
 
+#include <array>
 #include <chrono>
 #include <cstdint>
 #include <memory>
+#include <mutex>
 #include <string>
 
 #include "bp/dds/dds.h"
@@ -68,27 +70,34 @@ void RequestsWriter(dds_qos_t* qos);
 void RequestsReader(dds_qos_t* qos);
 }  // namespace qos
 
-/// A participant and the four topics of a deployment.
+/// The four topics of a deployment.
+enum class TopicId { kUpdates, kEvents, kStatus, kRequests };
+
+/// A participant of a deployment; its topics are created on first use. (With DDS Security, a
+/// participant may only create the topics its permissions cover, so each role creates only the
+/// ones it reads or writes.)
 class Connection {
  public:
   /// Joins the deployment described by options.
   static Status Open(const ConnectionOptions& options, std::unique_ptr<Connection>* out);
   dds::Participant& participant() { return *participant_; }
   const dds::Participant& participant() const { return *participant_; }
-  dds_entity_t updates_topic() const { return updates_; }
-  dds_entity_t events_topic() const { return events_; }
-  dds_entity_t status_topic() const { return status_; }
-  dds_entity_t requests_topic() const { return requests_; }
+  /// The topic's handle, created on first use; the error names the topic (e.g. "Not Allowed By
+  /// Security" when the permissions do not cover it).
+  Status GetTopic(TopicId id, dds_entity_t* out);
+  /// A writer of topic id with qos.
+  Status CreateWriter(TopicId id, const dds::Qos& qos, dds::Writer* out);
+  /// A reader of topic id with qos (recording its writers' liveliness if given).
+  Status CreateReader(TopicId id, const dds::Qos& qos, dds::Reader* out,
+                      dds::WriterLiveliness* liveliness = nullptr);
   const ConnectionOptions& options() const { return options_; }
 
  private:
   Connection() = default;
   ConnectionOptions options_;
   std::unique_ptr<dds::Participant> participant_;
-  dds_entity_t updates_ = 0;
-  dds_entity_t events_ = 0;
-  dds_entity_t status_ = 0;
-  dds_entity_t requests_ = 0;
+  std::mutex mutex_;                      // guards topics_
+  std::array<dds_entity_t, 4> topics_{};  // 0 until created
 };
 
 }  // namespace bp::client
