@@ -48,6 +48,9 @@ struct WatchOptions {
   int32_t depth = 256;  ///< subscriber history
   double warmup_s = 0;  ///< leave the first seconds out of the final totals
   bool json = false;    ///< with stats: JSON lines (per second, and the totals at the end)
+  /// Keep the overlap set from a snapshot and the events (OverlapView) and check it against
+  /// the daemon's overlap count after every frame; exit 1 on any difference.
+  bool exact = false;
 };
 int Watch(const Common& common, const WatchOptions& options);
 

@@ -5,6 +5,7 @@
 #include "common.h"
 #include "percentile.h"
 
+#include "bp/client/overlap_view.h"
 #include "bp/client/subscriber.h"
 #include "bp/client/update_publisher.h"
 
@@ -44,6 +45,19 @@ int Watch(const Common& common, const WatchOptions& options) {
                  s.ToString().c_str());
     return 1;
   }
+  // --exact: the set from a snapshot and the events, checked after every frame.
+  std::unique_ptr<client::SnapshotRequester> requests;
+  client::OverlapView view;
+  uint64_t exact_checked = 0, exact_mismatches = 0;
+  auto asked = std::chrono::steady_clock::time_point{};
+  if (options.exact) {
+    if (Status s = client::SnapshotRequester::Create(*connection, &requests); !s.ok()) {
+      std::fprintf(stderr, "bpctl watch: %s\n", s.ToString().c_str());
+      return 1;
+    }
+    (void)WaitInterruptibly(
+        common.wait_s, [&](std::chrono::milliseconds t) { return requests->WaitForDaemon(t); });
+  }
   const auto start = std::chrono::steady_clock::now();
   auto window_start = start;
   uint64_t frames = 0, window_frames = 0, window_collides = 0, window_uncollides = 0;
@@ -63,6 +77,27 @@ int Watch(const Common& common, const WatchOptions& options) {
       return 1;
     }
     const uint64_t now_ns = client::WallClockNs();
+    if (options.exact) {
+      for (const auto& b : batches) {
+        if (view.Apply(b)) asked = {};  // lost its sync (or never had it): ask at once
+        if (!b.snapshot() && b.last_part() && view.synced()) {
+          ++exact_checked;
+          if (view.size() != b.overlaps()) {
+            ++exact_mismatches;
+            std::fprintf(stderr,
+                         "bpctl watch: frame %llu: %zu pairs from the snapshot and events, the "
+                         "daemon counts %llu\n",
+                         static_cast<unsigned long long>(b.frame()), view.size(),
+                         static_cast<unsigned long long>(b.overlaps()));
+          }
+        }
+      }
+      const auto now = std::chrono::steady_clock::now();
+      if (view.wants_snapshot() && now - asked > std::chrono::seconds(1)) {
+        (void)requests->Request(view.resyncs() == 0 ? "join" : "resync");
+        asked = now;
+      }
+    }
     for (const auto& b : batches) {
       // Snapshots (the whole overlap set, published when some subscriber asks for one) are
       // not events: a line per event and the rates ignore them.
@@ -154,6 +189,24 @@ int Watch(const Common& common, const WatchOptions& options) {
           static_cast<unsigned long long>(sub->gaps()));
     }
     std::fflush(stdout);
+  }
+  if (options.exact) {
+    std::fprintf(stderr,
+                 "bpctl watch: exact: %llu frames checked against the daemon's count, %llu "
+                 "differences, %llu snapshots applied, %llu resyncs (%llu gaps, %llu restarts, "
+                 "%llu contradictions)\n",
+                 static_cast<unsigned long long>(exact_checked),
+                 static_cast<unsigned long long>(exact_mismatches),
+                 static_cast<unsigned long long>(view.snapshots()),
+                 static_cast<unsigned long long>(view.resyncs()),
+                 static_cast<unsigned long long>(view.gaps()),
+                 static_cast<unsigned long long>(view.restarts()),
+                 static_cast<unsigned long long>(view.contradictions()));
+    if (exact_checked == 0) {
+      std::fprintf(stderr, "bpctl watch: exact: no frame could be checked (no snapshot?)\n");
+      return 1;
+    }
+    if (exact_mismatches > 0 || view.contradictions() > 0) return 1;
   }
   return 0;
 }

@@ -159,5 +159,33 @@ TEST(Bpctl, CheckCountsRejectionsAndRefusesBadInput) {
   std::filesystem::remove(file);
 }
 
+// Issue 8: watch --exact joins a running scene late, syncs from a snapshot and checks its set
+// against the daemon's count after every frame.
+TEST(Bpctl, WatchExactJoinsLateAndAgreesWithTheDaemon) {
+  service::Config config = TestConfig(kDomain);
+  bpctl::Common common;
+  common.config = config;
+  common.wait_s = 10;
+  bpctl::SceneOptions scene;
+  scene.params.n = 1000;
+  scene.params.moving = 100;
+  scene.params.churn = 10;
+  scene.params.density = 0.1;
+  scene.rate_hz = 40;
+  scene.frames = 120;
+  scene.quiet = true;
+  InProcessDaemon daemon(config);
+  std::thread publisher([&] { EXPECT_EQ(bpctl::Scene(common, scene), 0); });
+  std::this_thread::sleep_for(500ms);  // the scene is running: this watcher joins late
+  bpctl::WatchOptions watch;
+  watch.stats = true;
+  watch.exact = true;
+  watch.seconds = 2;
+  EXPECT_EQ(bpctl::Watch(common, watch), 0);
+  publisher.join();
+  EXPECT_GE(daemon.daemon().snapshots(), 1u);
+  EXPECT_TRUE(daemon.Stop().ok());
+}
+
 }  // namespace
 }  // namespace bp::test
