@@ -185,25 +185,40 @@ void Daemon::Drain(size_t max_rounds, bool until_stop) {
 }
 
 bool Daemon::ClaimProducer(uint32_t producer, dds_instance_handle_t writer) {
-  auto [it, inserted] = claims_.try_emplace(producer, writer);
-  if (inserted || it->second == writer) return true;
+  auto it = claims_.find(producer);
+  if (it == claims_.end()) {
+    // A writer that is already not alive may still have batches queued: it claims the id, and
+    // its lease (counted from when it stopped being alive) expires the claim again.
+    claims_.emplace(producer, Claim{writer, updates_.MatchedWriterGuid(writer)});
+    return true;
+  }
+  if (it->second.writer == writer) return true;
+  // The same writer under a new handle: Cyclone dropped it after a stall longer than the
+  // participant lease and discovered it again. It keeps its id and its objects.
+  const dds::Guid guid = updates_.MatchedWriterGuid(writer);
+  if (guid != dds::Guid{} && guid == it->second.guid) {
+    spdlog::info("producer {}: its writer was rediscovered; it keeps its objects", producer);
+    down_since_.erase(it->second.writer);
+    it->second.writer = writer;
+    return true;
+  }
   // Another writer holds the id: it keeps it while it is alive (matched, liveliness not lost).
   (void)CheckProducers();  // liveliness changes that arrived with this batch
-  auto holder = claims_.find(producer);
-  if (holder == claims_.end()) {  // the lease just expired
-    claims_.emplace(producer, writer);
+  it = claims_.find(producer);
+  if (it == claims_.end()) {  // the lease just expired
+    claims_.emplace(producer, Claim{writer, guid});
     return true;
   }
   const auto matched = updates_.MatchedWriterHandles();
   const bool matched_now =
-      std::find(matched.begin(), matched.end(), holder->second) != matched.end();
-  if (matched_now && !down_since_.contains(holder->second)) return false;
+      std::find(matched.begin(), matched.end(), it->second.writer) != matched.end();
+  if (matched_now && !down_since_.contains(it->second.writer)) return false;
   // A new incarnation: what the old writer left is erased before the new one's batch applies.
   ExpireProducer(producer,
                  matched_now ? "its writer is not alive and a new writer takes over"
                              : "its writer left and a new writer takes over",
-                 /*close_frame=*/false);
-  claims_.emplace(producer, writer);
+                 /*lease=*/false);
+  claims_.emplace(producer, Claim{writer, guid});
   return true;
 }
 
@@ -223,47 +238,61 @@ std::chrono::steady_clock::time_point Daemon::CheckProducers() {
   const auto lease = std::chrono::duration_cast<Clock::duration>(
       std::chrono::duration<double>(config_.producers.lease_s));
   std::vector<uint32_t> expired;
-  for (auto it = down_since_.begin(); it != down_since_.end();) {
-    const auto due = it->second + lease;
-    uint32_t producer = 0;
-    for (const auto& [p, w] : claims_) {
-      if (w == it->first) producer = p;
+  bool forget_gone = false;
+  for (const auto& [writer, since] : down_since_) {
+    const auto due = since + lease;
+    bool holds = false;
+    for (const auto& [producer, claim] : claims_) {  // a writer may hold several ids (replay)
+      if (claim.writer != writer) continue;
+      holds = true;
+      if (leasing && now >= due) expired.push_back(producer);
     }
-    if (producer == 0) {
-      // Not a producer's writer (or one already expired): forget it once its lease passed.
-      it = (now >= due) ? down_since_.erase(it) : std::next(it);
-      continue;
-    }
-    if (leasing && now >= due) {
-      expired.push_back(producer);
-      it = down_since_.erase(it);
-      continue;
-    }
-    if (leasing) next = std::min(next, due);
-    ++it;
+    if (holds && leasing && now < due) next = std::min(next, due);
+    // An entry stays while its writer is matched, so that a late batch of an expired writer
+    // claims its id only to see it expire again; one that left is forgotten.
+    if (!holds && now >= due) forget_gone = true;
   }
   for (uint32_t producer : expired) {
     ExpireProducer(producer,
                    "its writer has not been alive for producers.lease_s = " +
                        FormatSeconds(config_.producers.lease_s),
-                   /*close_frame=*/true);
+                   /*lease=*/true);
+  }
+  if (forget_gone && now >= next_forget_) {  // at most once a second
+    next_forget_ = now + std::chrono::seconds(1);
+    const auto matched = updates_.MatchedWriterHandles();
+    std::erase_if(down_since_, [&](const auto& entry) {
+      return std::find(matched.begin(), matched.end(), entry.first) == matched.end() &&
+             std::none_of(claims_.begin(), claims_.end(),
+                          [&](const auto& c) { return c.second.writer == entry.first; });
+    });
   }
   return next;
 }
 
-void Daemon::ExpireProducer(uint32_t producer, const std::string& why, bool close_frame) {
+void Daemon::ExpireProducer(uint32_t producer, const std::string& why, bool lease) {
   const uint64_t erased = host_->EraseProducer(producer);
   claims_.erase(producer);
   last_batch_seq_.erase(producer);
-  producers_expired_.fetch_add(1);
-  spdlog::warn("producer {}: {}; erased its {} objects", producer, why, erased);
+  if (lease) producers_expired_.fetch_add(1);
+  if (lease || erased > 0) {
+    spdlog::warn("producer {}: {}; erased its {} objects", producer, why, erased);
+  } else {
+    spdlog::info("producer {}: {}", producer, why);
+  }
   if (erased > 0) {
     frame_dirty_ = true;
     // A lease: the uncollides go out now, whatever the frame boundary. A take-over: the new
     // writer's batch follows and its frame carries them.
-    if (close_frame) RunFrame(0, 0, 0);
+    if (lease) RunFrame(0, 0, 0);
   }
-  PublishStatus(wire::SERVING, false);  // operators see producers_expired change
+  if (lease) {
+    // Operators see producers_expired change; a producer that is in fact alive (it hung
+    // longer than the lease) sees its id and restates its objects.
+    expired_now_.push_back(producer);
+    PublishStatus(wire::SERVING, false);
+    expired_now_.clear();
+  }
 }
 
 void Daemon::ProcessPayload(std::span<const uint8_t> payload, const dds_sample_info_t& info) {
@@ -487,6 +516,7 @@ void Daemon::PublishStatus(wire::Health health, bool with_interval) {
   status_msg_.set_producers(static_cast<uint32_t>(claims_.size()));
   status_msg_.set_epoch(epoch_);
   status_msg_.set_producers_expired(producers_expired_.load());
+  for (uint32_t p : expired_now_) status_msg_.add_expired_producers(p);
   buffer_.clear();
   if (!status_msg_.SerializeToString(&buffer_)) {
     spdlog::warn("status report does not serialise");

@@ -55,7 +55,7 @@ class Daemon {
   uint64_t frames() const { return frames_.load(); }
   /// Items rejected so far.
   uint64_t rejected() const { return rejected_total_.load(); }
-  /// Producers whose objects were erased because they went away (lease or take-over).
+  /// Producers whose objects were erased because their lease ran out.
   uint64_t producers_expired() const { return producers_expired_.load(); }
   /// Snapshots published so far.
   uint64_t snapshots() const { return snapshots_published_.load(); }
@@ -73,8 +73,9 @@ class Daemon {
   // Takes the writers' liveliness changes; erases the objects of producers whose writer has been
   // gone for producers.lease_s. Returns when the next one is due (time_point::max() if none).
   std::chrono::steady_clock::time_point CheckProducers();
-  // Erases producer's objects and forgets the producer; with close_frame, runs a frame at once.
-  void ExpireProducer(uint32_t producer, const std::string& why, bool close_frame);
+  // Erases producer's objects and forgets the producer. lease: its lease ran out (counted, a
+  // frame runs at once, the status report lists it); else a take-over by a new writer.
+  void ExpireProducer(uint32_t producer, const std::string& why, bool lease);
   // Takes and processes up to max_rounds rounds of batches; with until_stop, also returns as
   // soon as a stop is requested.
   void Drain(size_t max_rounds, bool until_stop);
@@ -130,12 +131,19 @@ class Daemon {
   wire::DaemonStatus status_msg_;
   std::string buffer_;
 
-  // Producers: the writer that claimed each id, and the last batch_seq seen.
-  std::unordered_map<uint32_t, dds_instance_handle_t> claims_;
+  // Producers: the writer that claimed each id (its handle, and its GUID, which survives a
+  // rediscovery), and the last batch_seq seen.
+  struct Claim {
+    dds_instance_handle_t writer = 0;
+    dds::Guid guid{};
+  };
+  std::unordered_map<uint32_t, Claim> claims_;
   std::unordered_map<uint32_t, uint64_t> last_batch_seq_;
   // Writers of the updates topic that are not alive (lost liveliness or left), since when.
   std::unordered_map<dds_instance_handle_t, std::chrono::steady_clock::time_point> down_since_;
   std::vector<dds::WriterLiveliness::Change> liveliness_changes_;
+  std::chrono::steady_clock::time_point next_forget_{};
+  std::vector<uint32_t> expired_now_;  // listed in the status report being published
 
   // Rejections of the batch being processed.
   std::vector<wire::Rejection> pending_rejections_;

@@ -1,6 +1,7 @@
 #include "bp/dds/dds.h"
 
 #include <condition_variable>
+#include <cstring>
 #include <map>
 #include <mutex>
 #include <thread>
@@ -283,6 +284,16 @@ std::vector<dds_instance_handle_t> Reader::MatchedWriterHandles() const {
     }
     handles.resize(static_cast<size_t>(n));
   }
+}
+
+Guid Reader::MatchedWriterGuid(dds_instance_handle_t writer) const {
+  Guid guid{};
+  dds_builtintopic_endpoint_t* endpoint = dds_get_matched_publication_data(reader_.get(), writer);
+  if (endpoint == nullptr) return guid;
+  static_assert(sizeof(endpoint->key.v) == sizeof(guid));
+  std::memcpy(guid.data(), endpoint->key.v, guid.size());
+  dds_builtintopic_free_endpoint(endpoint);
+  return guid;
 }
 
 Status Reader::WaitForWriters(uint32_t n, std::chrono::milliseconds timeout) const {

@@ -1,7 +1,9 @@
 #include "bp/client/update_publisher.h"
 
 #include <algorithm>
+#include <cmath>
 #include <thread>
+#include <unordered_set>
 
 #include <time.h>
 
@@ -127,12 +129,21 @@ void UpdatePublisher::Keep(const wire::UpdateBatch& batch) {
       CopyCorner(boxes.lo64(), at, k, &kept->lo);
       CopyCorner(boxes.hi64(), at, k, &kept->hi);
     }
+    // The daemon refuses a box that is not finite or inverted: keep the last one it took.
+    for (uint32_t a = 0; a < k; ++a) {
+      if (!std::isfinite(kept->lo[a]) || !std::isfinite(kept->hi[a]) || kept->lo[a] > kept->hi[a]) {
+        return false;
+      }
+    }
     return true;
   };
+  std::unordered_set<uint64_t> erased(batch.erases().begin(), batch.erases().end());
   const wire::BoxArray& inserts = batch.inserts();
   for (int i = 0; i < inserts.ids_size(); ++i) {
+    // An insert of an id that is live (and not erased in this batch) is refused as a duplicate.
+    if (kept_.contains(inserts.ids(i)) && !erased.contains(inserts.ids(i))) continue;
     Kept kept;
-    if (!corners(inserts, i, &kept)) continue;  // malformed: the daemon refused it too
+    if (!corners(inserts, i, &kept)) continue;  // refused by the daemon too
     if (inserts.static_flags_size() > i) kept.is_static = inserts.static_flags(i);
     if (inserts.category_size() > i) kept.category = inserts.category(i);
     if (inserts.mask_size() > i) kept.mask = inserts.mask(i);
@@ -159,7 +170,14 @@ Status UpdatePublisher::Maintain() {
           return;
         }
         const uint64_t epoch = status_msg_.epoch();
-        if (epoch == 0 || epoch == epoch_) return;
+        if (epoch != 0 && epoch == epoch_) {
+          // This daemon erased our objects: we hung (or were cut off) longer than its lease.
+          for (uint32_t p : status_msg_.expired_producers()) {
+            if (p == producer_) restate_due_ = true;
+          }
+          return;
+        }
+        if (epoch == 0) return;
         if (std::find(retired_epochs_.begin(), retired_epochs_.end(), epoch) !=
             retired_epochs_.end()) {
           return;  // a late report of a daemon already replaced
@@ -205,6 +223,9 @@ Status UpdatePublisher::Restate() {
         inserts->add_mask(j->second.mask);
       }
     }
+    // The last one closes a frame, so the restored objects' pairs are published even when
+    // the producer rests (Maintain) and no other batch follows.
+    restate_batch_.set_end_of_frame(it == kept_.end());
     if (Status s = Stamp(&restate_batch_); !s.ok()) return s;  // due again next time
   }
   restate_due_ = false;

@@ -6,6 +6,7 @@
 #include <condition_variable>
 #include <limits>
 #include <mutex>
+#include <set>
 
 #include "service_test_support.h"
 
@@ -731,8 +732,17 @@ TEST(Daemon, AProducerThatGoesAwayHasItsObjectsErasedAfterTheLease) {
     BP_ASSERT_OK(client::UpdatePublisher::Create(*own, 1, 5000ms, &leaver));
     BP_ASSERT_OK(leaver->WaitForDaemon(10s));
     wire::UpdateBatch b1 = InsertBatch({{10, Cube(0)}, {11, Cube(0.5f)}});
+    b1.set_end_of_frame(false);
     BP_ASSERT_OK(leaver->Publish(&b1));
-    ExpectFrame(*client.events, 1, {}, {{service::GlobalKey(1, 10), service::GlobalKey(1, 11)}});
+    // The same writer speaks for producer 5 too (as bpctl replay does for a recording's
+    // producers): both ids are its, and both expire with it.
+    wire::UpdateBatch b5 = InsertBatch({{50, Cube(80)}, {51, Cube(80.5f)}});
+    b5.set_version(wire::SCHEMA_VERSION_1);
+    b5.set_producer(5);
+    BP_ASSERT_OK(leaver->PublishRaw(b5.SerializeAsString()));
+    ExpectFrame(*client.events, 1, {},
+                {{service::GlobalKey(1, 10), service::GlobalKey(1, 11)},
+                 {service::GlobalKey(5, 50), service::GlobalKey(5, 51)}});
     wire::UpdateBatch b2 = InsertBatch({{20, Cube(0.25f)}, {21, Cube(40)}});
     BP_ASSERT_OK(stays->Publish(&b2));
     ExpectFrame(*client.events, 2, {},
@@ -745,20 +755,35 @@ TEST(Daemon, AProducerThatGoesAwayHasItsObjectsErasedAfterTheLease) {
   const double waited =
       std::chrono::duration<double>(std::chrono::steady_clock::now() - gone).count();
   EXPECT_GE(waited, 0.45) << "erased before the lease ran out";
-  EXPECT_EQ(fe.uncollide, (PairList{{service::GlobalKey(1, 10), service::GlobalKey(1, 11)},
-                                    {service::GlobalKey(1, 10), service::GlobalKey(2, 20)},
-                                    {service::GlobalKey(1, 11), service::GlobalKey(2, 20)}}));
+  // Both of the writer's producers expire (one frame each).
+  PairList uncollide = fe.uncollide;
+  if (fe.last.objects() != 2u) {
+    ASSERT_TRUE(client.events->WaitFrame(4, &fe, 10s)) << "producer 5 did not expire";
+    uncollide.insert(uncollide.end(), fe.uncollide.begin(), fe.uncollide.end());
+    std::sort(uncollide.begin(), uncollide.end());
+  }
+  EXPECT_EQ(uncollide, (PairList{{service::GlobalKey(1, 10), service::GlobalKey(1, 11)},
+                                 {service::GlobalKey(1, 10), service::GlobalKey(2, 20)},
+                                 {service::GlobalKey(1, 11), service::GlobalKey(2, 20)},
+                                 {service::GlobalKey(5, 50), service::GlobalKey(5, 51)}}));
   EXPECT_TRUE(fe.collide.empty());
   EXPECT_EQ(fe.last.objects(), 2u);
   EXPECT_EQ(fe.last.overlaps(), 0u);
-  EXPECT_EQ(daemon.daemon().producers_expired(), 1u);
+  EXPECT_EQ(daemon.daemon().producers_expired(), 2u);
+  const uint64_t next_frame = fe.last.frame() + 1;
   // Producer 2 is untouched and its objects still pair with newcomers.
   wire::UpdateBatch b3 = InsertBatch({{22, Cube(40.5f)}});
   BP_ASSERT_OK(stays->Publish(&b3));
-  ExpectFrame(*client.events, 4, {}, {{service::GlobalKey(2, 21), service::GlobalKey(2, 22)}});
-  // Its status report counts the expiry.
+  ExpectFrame(*client.events, next_frame, {},
+              {{service::GlobalKey(2, 21), service::GlobalKey(2, 22)}});
+  // The status reports count the expiries and name the producers as they expire.
   ASSERT_TRUE(client.status->WaitUntil(
-      [](const wire::DaemonStatus& r) { return r.producers_expired() == 1 && r.epoch() != 0; }));
+      [](const wire::DaemonStatus& r) { return r.producers_expired() == 2 && r.epoch() != 0; }));
+  std::set<uint32_t> named;
+  for (const auto& r : client.status->reports()) {
+    named.insert(r.expired_producers().begin(), r.expired_producers().end());
+  }
+  EXPECT_EQ(named, (std::set<uint32_t>{1, 5}));
 }
 
 // Issue 8: with producers.lease_s = 0 the objects of a producer that left stay.
@@ -783,7 +808,7 @@ TEST(Daemon, WithoutALeaseTheObjectsOfAProducerThatLeftStay) {
   // Erase of 10 and 11, insert of 11 and 12 in one frame: (10, 11) ends, (11, 12) begins.
   ExpectFrame(*client.events, 2, {{service::GlobalKey(1, 10), service::GlobalKey(1, 11)}},
               {{service::GlobalKey(1, 11), service::GlobalKey(1, 12)}});
-  EXPECT_EQ(daemon.daemon().producers_expired(), 1u);
+  EXPECT_EQ(daemon.daemon().producers_expired(), 0u) << "a take-over is not a lease expiry";
 }
 
 // Issue 8: the daemon restarts empty; a producer that keeps its objects (restate_on_restart)
@@ -835,9 +860,9 @@ TEST(Daemon, ARestartedDaemonGetsTheObjectsBackFromARestatingProducer) {
     PublishFrame(*pub, ops, 3, frame, 1);
     std::this_thread::sleep_for(20ms);
   }
-  // The restate closes no frame; the five published ones are frames 1..5 of the new daemon.
+  // The restate closes the new daemon's frame 1; the five published ones are frames 2..6.
   ASSERT_TRUE(SyncUntil(*sub, *requests, view, [&](const client::OverlapView& v) {
-    return v.epoch() != first_epoch && v.frame() == 5;
+    return v.epoch() != first_epoch && v.frame() == 6;
   })) << view.last_loss();
   EXPECT_EQ(view.SortedPairs(), oracle.Pairs());
   EXPECT_NE(view.epoch(), first_epoch);
@@ -879,6 +904,16 @@ TEST(Daemon, SnapshotRequestsAreRateLimited) {
   const uint64_t snapshots = daemon.daemon().snapshots();
   EXPECT_GE(snapshots, 2u);
   EXPECT_LE(static_cast<double>(snapshots), seconds / 0.4 + 2.0) << "about 100 requests";
+  // Quiet for longer than the interval: a request is served at once; a second one right after
+  // waits for the interval, with nothing else waking the daemon, and is served then.
+  BP_ASSERT_OK(requests->Request("one"));
+  std::this_thread::sleep_for(150ms);
+  EXPECT_EQ(daemon.daemon().snapshots(), snapshots + 1) << "served at once";
+  BP_ASSERT_OK(requests->Request("deferred"));
+  std::this_thread::sleep_for(100ms);
+  EXPECT_EQ(daemon.daemon().snapshots(), snapshots + 1) << "not before the interval";
+  std::this_thread::sleep_for(450ms);
+  EXPECT_EQ(daemon.daemon().snapshots(), snapshots + 2) << "served when the interval ran out";
   // A fresh subscriber still syncs to the exact set.
   std::unique_ptr<client::EventSubscriber> sub;
   BP_ASSERT_OK(client::EventSubscriber::Create(*client.connection, 100, &sub));
@@ -886,6 +921,51 @@ TEST(Daemon, SnapshotRequestsAreRateLimited) {
   client::OverlapView view;
   ASSERT_TRUE(SyncTo(*sub, *requests, view, 1)) << view.last_loss();
   EXPECT_EQ(view.SortedPairs(), (PairList{{service::GlobalKey(1, 10), service::GlobalKey(1, 11)}}));
+}
+
+// Issue 8: a restating producer that finds its own id among a report's expired_producers (it
+// hung longer than the daemon's lease) restates its objects to the same daemon; the restate
+// closes a frame, and replaces objects the daemon still holds without a rejection.
+TEST(Daemon, AProducerTheDaemonExpiredWhileItHungRestates) {
+  service::Config config = TestConfig(kDomain);
+  InProcessDaemon daemon(config);
+  Client client(config);
+  client::PublisherOptions options;
+  options.restate_on_restart = true;
+  std::unique_ptr<client::UpdatePublisher> pub;
+  BP_ASSERT_OK(client::UpdatePublisher::Create(*client.connection, 1, options, &pub));
+  BP_ASSERT_OK(pub->WaitForDaemon(10s));
+  wire::UpdateBatch b1 = InsertBatch({{10, Cube(0)}, {11, Cube(0.5f)}});
+  BP_ASSERT_OK(pub->Publish(&b1));
+  ExpectFrame(*client.events, 1, {}, {{service::GlobalKey(1, 10), service::GlobalKey(1, 11)}});
+  BP_ASSERT_OK(pub->Maintain());
+  EXPECT_EQ(pub->restates(), 0u);
+  // The report the daemon publishes when producer 1's lease runs out (written here: making the
+  // process hang longer than the lease is daemon_process_test's business).
+  dds::Qos qos;
+  client::qos::StatusWriter(qos.get(), 1000ms);
+  dds::Writer fake;
+  BP_ASSERT_OK(client.connection->CreateWriter(client::TopicId::kStatus, qos, &fake));
+  wire::DaemonStatus report;
+  report.set_version(wire::SCHEMA_VERSION_1);
+  report.set_health(wire::SERVING);
+  report.set_epoch(pub->daemon_epoch());
+  report.add_expired_producers(7);  // another producer: not this one's business
+  BP_ASSERT_OK(fake.Write(1, report.SerializeAsString()));
+  std::this_thread::sleep_for(200ms);
+  BP_ASSERT_OK(pub->Maintain());
+  EXPECT_EQ(pub->restates(), 0u);
+  report.add_expired_producers(1);
+  BP_ASSERT_OK(fake.Write(2, report.SerializeAsString()));
+  for (int i = 0; i < 100 && pub->restates() == 0; ++i) {
+    std::this_thread::sleep_for(10ms);
+    BP_ASSERT_OK(pub->Maintain());
+  }
+  EXPECT_EQ(pub->restates(), 1u);
+  // The restate closed frame 2: the daemon still held both objects, so nothing changed.
+  ExpectFrame(*client.events, 2, {}, {});
+  client.status->Collect(200ms);
+  for (const auto& r : client.status->rejections()) ADD_FAILURE() << r.message();
 }
 
 }  // namespace

@@ -312,14 +312,27 @@ TEST(EngineHost, RestateReplacesLiveObjectsAndInsertsTheOthers) {
     std::vector<uint64_t> unc, col;
     host->Query(&unc, &col);
     EXPECT_EQ(ToPairs(col), (PairList{{GlobalKey(1, 1), GlobalKey(1, 2)}}));
-    // A restate: 1 moved away, 2 unchanged, 3 new, at capacity (3): no DUPLICATE_INSERT, no
-    // CAPACITY for the live ones.
+    // At capacity (3 of 3, with 9 far away), a restate: 1 moved away and 2 unchanged replace
+    // the live ones (no DUPLICATE_INSERT, no CAPACITY); 3 is new, and refused for capacity.
+    wire::UpdateBatch full = Batch(1, 3);
+    AddBox(full.mutable_inserts(), 9, {100, 0, 0}, {101, 1, 1});
+    ASSERT_TRUE(Apply(*host, full).rejects.empty());
     wire::UpdateBatch r = Batch(1, 3);
     r.set_restate(true);
     AddBox(r.mutable_inserts(), 1, {5, 0, 0}, {6, 1, 1});
     AddBox(r.mutable_inserts(), 2, {0.5, 0, 0}, {1.5, 1, 1});
     AddBox(r.mutable_inserts(), 3, {5.5, 0, 0}, {6.5, 1, 1});
     Outcome out = Apply(*host, r);
+    ASSERT_EQ(out.rejects.size(), 1u);
+    EXPECT_EQ(out.rejects[0].reason, wire::CAPACITY);
+    EXPECT_EQ(out.rejects[0].id, 3u);
+    EXPECT_EQ(out.counts.updates, 2u);
+    EXPECT_EQ(host->Objects(), 3u);
+    // With room again (9 erased), 3 is inserted by the same restate.
+    wire::UpdateBatch room = Batch(1, 3);
+    room.add_erases(9);
+    ASSERT_TRUE(Apply(*host, room).rejects.empty());
+    out = Apply(*host, r);
     EXPECT_TRUE(out.rejects.empty()) << out.rejects[0].message;
     EXPECT_EQ(out.counts.updates, 2u);
     EXPECT_EQ(out.counts.inserts, 1u);

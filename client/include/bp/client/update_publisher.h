@@ -13,7 +13,9 @@
 // object it has published (the last box and the insert's attributes, as sent) and follows the
 // daemon's status reports. When a daemon with a new epoch appears (a restarted daemon starts
 // empty), the next Publish or Maintain first sends every kept object as a restate insert
-// (UpdateBatch.restate, in batches of `restate_batch_items`), then the caller's batch. Updates
+// (UpdateBatch.restate, in batches of `restate_batch_items`, the last closing a frame), then the
+// caller's batch. It restates too when the daemon reports that it erased this producer's objects
+// (DaemonStatus.expired_producers: the process hung longer than producers.lease_s). Updates
 // that reach the new daemon before the producer learned of it are refused (UNKNOWN_ID, in the
 // daemon's status) and the restate that follows carries their boxes: nothing is lost.
 //

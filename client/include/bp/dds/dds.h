@@ -12,6 +12,7 @@
 // every participant created in it (participants keep it alive through a shared_ptr).
 #pragma once
 
+#include <array>
 #include <chrono>
 #include <cstdint>
 #include <functional>
@@ -114,6 +115,9 @@ class Participant {
   Entity subscriber_;
 };
 
+/// A DDS entity's GUID (network-wide identity; an instance handle is only local).
+using Guid = std::array<uint8_t, 16>;
+
 /// One envelope as received: sequence number, payload bytes, and its DDS sample info.
 struct Received {
   uint64_t seq = 0;
@@ -183,6 +187,8 @@ class Reader {
   uint32_t MatchedWriters() const;
   /// Instance handles of the matched writers.
   std::vector<dds_instance_handle_t> MatchedWriterHandles() const;
+  /// The GUID of a matched writer; all zeros if it is not (or no longer) matched.
+  Guid MatchedWriterGuid(dds_instance_handle_t writer) const;
   /// Waits until at least n writers are matched. DeadlineExceeded on timeout.
   Status WaitForWriters(uint32_t n, std::chrono::milliseconds timeout) const;
   dds_entity_t get() const { return reader_.get(); }
