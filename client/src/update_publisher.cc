@@ -3,7 +3,6 @@
 #include <algorithm>
 #include <cmath>
 #include <thread>
-#include <unordered_set>
 
 #include <time.h>
 
@@ -137,11 +136,11 @@ void UpdatePublisher::Keep(const wire::UpdateBatch& batch) {
     }
     return true;
   };
-  std::unordered_set<uint64_t> erased(batch.erases().begin(), batch.erases().end());
   const wire::BoxArray& inserts = batch.inserts();
   for (int i = 0; i < inserts.ids_size(); ++i) {
-    // An insert of an id that is live (and not erased in this batch) is refused as a duplicate.
-    if (kept_.contains(inserts.ids(i)) && !erased.contains(inserts.ids(i))) continue;
+    // An insert of an id still kept (this batch's erases are already applied) is refused as a
+    // duplicate.
+    if (kept_.contains(inserts.ids(i))) continue;
     Kept kept;
     if (!corners(inserts, i, &kept)) continue;  // refused by the daemon too
     if (inserts.static_flags_size() > i) kept.is_static = inserts.static_flags(i);
