@@ -197,6 +197,7 @@ bool Daemon::ClaimProducer(uint32_t producer, dds_instance_handle_t writer) {
   // participant lease and discovered it again. It keeps its id and its objects.
   const dds::Guid guid = updates_.MatchedWriterGuid(writer);
   if (guid != dds::Guid{} && guid == it->second.guid) {
+    // Its batch came before its liveliness change: the batch_seq check finds what was lost.
     spdlog::info("producer {}: its writer was rediscovered; it keeps its objects", producer);
     down_since_.erase(it->second.writer);
     it->second.writer = writer;
@@ -228,6 +229,7 @@ std::chrono::steady_clock::time_point Daemon::CheckProducers() {
   for (const auto& change : liveliness_changes_) {
     if (change.alive) {
       down_since_.erase(change.writer);
+      FollowRediscoveredWriter(change.writer);
     } else {
       down_since_.try_emplace(change.writer, now);
     }
@@ -270,10 +272,85 @@ std::chrono::steady_clock::time_point Daemon::CheckProducers() {
   return next;
 }
 
+void Daemon::FollowRediscoveredWriter(dds_instance_handle_t writer) {
+  dds::Guid guid{};
+  std::vector<uint32_t> producers;
+  for (auto& [producer, claim] : claims_) {
+    if (claim.writer == writer) continue;  // known under this handle (a batch came first)
+    if (guid == dds::Guid{}) {
+      guid = updates_.MatchedWriterGuid(writer);
+      if (guid == dds::Guid{}) return;  // gone again
+    }
+    if (claim.guid != guid) continue;
+    down_since_.erase(claim.writer);
+    claim.writer = writer;
+    producers.push_back(producer);
+  }
+  if (producers.empty()) return;
+  std::sort(producers.begin(), producers.end());
+  spdlog::warn(
+      "producer {}: its writer was dropped by DDS and discovered again; it keeps its objects",
+      producers.front());
+  RequestResync(producers, "its writer was discovered again: batches may have been lost");
+}
+
+void Daemon::RequestResync(const std::vector<uint32_t>& producers, const char* why) {
+  for (uint32_t producer : producers) {
+    if (resync_pending_.insert(producer).second) resync_now_.push_back(producer);
+  }
+  if (resync_now_.empty()) return;
+  for (uint32_t producer : resync_now_) {
+    spdlog::warn("producer {}: {}; asking it to restate its objects", producer, why);
+  }
+  PublishStatus(wire::SERVING, false);
+  resync_now_.clear();
+}
+
+bool Daemon::TrackSequence(uint32_t producer) {
+  uint64_t& last_seq = last_batch_seq_[producer];
+  const uint64_t seq = batch_.batch_seq();
+  const bool gap = seq != 0 && last_seq != 0 && seq != last_seq + 1;
+  if (gap) spdlog::warn("producer {}: batch_seq jumped from {} to {}", producer, last_seq, seq);
+  last_seq = seq;
+  if (!batch_.restate()) {
+    // A run cut short names too little to erase anything: it is asked for again.
+    const bool cut_short = restating_.erase(producer) > 0;
+    return !gap && !cut_short;
+  }
+  const auto [run, first] = restating_.try_emplace(producer);
+  if (first) {
+    resync_pending_.erase(producer);  // answered; a gap before the run is covered by it
+    return true;
+  }
+  if (gap) {  // a batch of the run was lost
+    restating_.erase(run);
+    return false;
+  }
+  return true;
+}
+
+void Daemon::ContinueRestate(uint32_t producer) {
+  auto run = restating_.find(producer);
+  if (run == restating_.end()) return;
+  std::vector<uint64_t>& ids = run->second;
+  for (uint64_t id : batch_.inserts().ids()) ids.push_back(id);
+  if (!batch_.end_of_frame()) return;
+  std::sort(ids.begin(), ids.end());
+  const uint64_t erased = host_->EraseProducer(producer, &ids);
+  if (erased > 0) {
+    spdlog::warn("producer {}: restated {} objects; erased {} it no longer has", producer,
+                 ids.size(), erased);
+    interval_updates_ += erased;
+  }
+  restating_.erase(run);
+}
+
 void Daemon::ExpireProducer(uint32_t producer, const std::string& why, bool lease) {
-  const uint64_t erased = host_->EraseProducer(producer);
+  const uint64_t erased = host_->EraseProducer(producer, nullptr);
   claims_.erase(producer);
   last_batch_seq_.erase(producer);
+  restating_.erase(producer);
+  resync_pending_.erase(producer);
   if (lease) producers_expired_.fetch_add(1);
   if (lease || erased > 0) {
     spdlog::warn("producer {}: {}; erased its {} objects", producer, why, erased);
@@ -306,6 +383,12 @@ void Daemon::ProcessPayload(std::span<const uint8_t> payload, const dds_sample_i
   Reject refused;
   if (!AdmitBatch(payload, config_.limits, &batch_, &refused)) {
     // The producer is known once the payload parsed (0 for oversize or malformed payloads).
+    // A refused batch of the writer holding the id is not a gap in its sequence.
+    const auto claim = claims_.find(batch_.producer());
+    if (claim != claims_.end() && claim->second.writer == info.publication_handle &&
+        batch_.batch_seq() != 0) {
+      last_batch_seq_[batch_.producer()] = batch_.batch_seq();
+    }
     batch_reject(batch_.producer(), refused.reason, std::move(refused.message));
     return;
   }
@@ -316,23 +399,20 @@ void Daemon::ProcessPayload(std::span<const uint8_t> payload, const dds_sample_i
                      " is in use by another live writer; give each producer its own id");
     return;
   }
-  uint64_t& last_seq = last_batch_seq_[producer];
-  if (batch_.batch_seq() != 0 && last_seq != 0 && batch_.batch_seq() != last_seq + 1) {
-    spdlog::warn("producer {}: batch_seq jumped from {} to {}", producer, last_seq,
-                 batch_.batch_seq());
-  }
-  last_seq = batch_.batch_seq();
+  const bool in_sequence = TrackSequence(producer);
 
   ApplyCounts counts;
   host_->Apply(
       batch_, [&](Reject&& r) { ReportRejection(producer, &batch_, std::move(r)); }, &counts);
   FlushRejections();
+  if (batch_.restate()) ContinueRestate(producer);
   interval_updates_ += counts.inserts + counts.updates + counts.erases;
   frame_dirty_ = true;
   frame_work_ += Clock::now() - start;
   if (config_.frames.boundary == FrameBoundary::kEndOfFrame && batch_.end_of_frame()) {
     RunFrame(producer, batch_.frame(), batch_.sent_time_ns());
   }
+  if (!in_sequence) RequestResync({producer}, "batches were lost (a batch_seq gap)");
 }
 
 void Daemon::ReportRejection(uint32_t producer, const wire::UpdateBatch* batch, Reject&& r) {
@@ -517,6 +597,7 @@ void Daemon::PublishStatus(wire::Health health, bool with_interval) {
   status_msg_.set_epoch(epoch_);
   status_msg_.set_producers_expired(producers_expired_.load());
   for (uint32_t p : expired_now_) status_msg_.add_expired_producers(p);
+  for (uint32_t p : resync_now_) status_msg_.add_resync_producers(p);
   buffer_.clear();
   if (!status_msg_.SerializeToString(&buffer_)) {
     spdlog::warn("status report does not serialise");

@@ -29,6 +29,7 @@
 #include <memory>
 #include <string>
 #include <unordered_map>
+#include <unordered_set>
 #include <vector>
 
 #include "broadphase.pb.h"
@@ -76,6 +77,18 @@ class Daemon {
   // Erases producer's objects and forgets the producer. lease: its lease ran out (counted, a
   // frame runs at once, the status report lists it); else a take-over by a new writer.
   void ExpireProducer(uint32_t producer, const std::string& why, bool lease);
+  // The claim of a writer that Cyclone dropped (a stall longer than the participant lease) and
+  // has just discovered again under a new handle moves to that handle; its producers are asked
+  // to restate (batches around the stall may be lost, and a resting producer shows no gap).
+  void FollowRediscoveredWriter(dds_instance_handle_t writer);
+  // Asks producers to restate (DaemonStatus.resync_producers) unless already asked.
+  void RequestResync(const std::vector<uint32_t>& producers, const char* why);
+  // Keeps track of a producer's batch_seq and restate runs, before its batch is applied.
+  // Returns false if a resync must be asked for after it (batches were lost).
+  bool TrackSequence(uint32_t producer);
+  // After a restate batch was applied: collects its ids; the run's last batch erases the
+  // producer's objects it did not name.
+  void ContinueRestate(uint32_t producer);
   // Takes and processes up to max_rounds rounds of batches; with until_stop, also returns as
   // soon as a stop is requested.
   void Drain(size_t max_rounds, bool until_stop);
@@ -139,6 +152,11 @@ class Daemon {
   };
   std::unordered_map<uint32_t, Claim> claims_;
   std::unordered_map<uint32_t, uint64_t> last_batch_seq_;
+  // Restate runs under way: the producer-local ids named so far.
+  std::unordered_map<uint32_t, std::vector<uint64_t>> restating_;
+  // Producers asked to restate that have not started yet.
+  std::unordered_set<uint32_t> resync_pending_;
+  std::vector<uint32_t> resync_now_;  // listed in the status report being published
   // Writers of the updates topic that are not alive (lost liveliness or left), since when.
   std::unordered_map<dds_instance_handle_t, std::chrono::steady_clock::time_point> down_since_;
   std::vector<dds::WriterLiveliness::Change> liveliness_changes_;

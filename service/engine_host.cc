@@ -103,10 +103,14 @@ class TypedHost final : public EngineHost {
     ApplyBoxes(batch, wire::OP_UPDATE, batch.updates(), refuse, out);
   }
 
-  uint64_t EraseProducer(uint32_t producer) override {
+  uint64_t EraseProducer(uint32_t producer, const std::vector<uint64_t>* keep) override {
     std::vector<uint64_t> keys;
     engine_->ForEachObject([&](const uint64_t& key) {
-      if ((key >> kProducerShift) == producer) keys.push_back(key);
+      if ((key >> kProducerShift) == producer &&
+          (keep == nullptr ||
+           !std::binary_search(keep->begin(), keep->end(), key & (kLocalIdLimit - 1)))) {
+        keys.push_back(key);
+      }
     });
     uint64_t erased = 0;
     for (uint64_t key : keys) {

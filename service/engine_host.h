@@ -67,9 +67,10 @@ class EngineHost {
   /// valid item; reject receives each refused one.
   virtual void Apply(const wire::UpdateBatch& batch, const std::function<void(Reject&&)>& reject,
                      ApplyCounts* out) = 0;
-  /// Erases every object of producer (buffered, like Apply's erases); returns how many.
-  /// O(live objects): for a producer that went away.
-  virtual uint64_t EraseProducer(uint32_t producer) = 0;
+  /// Erases every object of producer (buffered, like Apply's erases) except, with keep (sorted
+  /// producer-local ids), those it lists (the end of a restate); returns how many it erased.
+  /// O(live objects): for a producer that went away or restated.
+  virtual uint64_t EraseProducer(uint32_t producer, const std::vector<uint64_t>* keep) = 0;
   /// Runs the engine's query; replaces uncollide and collide by the frame's reported pairs,
   /// flattened (a0, b0, a1, b1, ...) in canonical order.
   virtual void Query(std::vector<uint64_t>* uncollide, std::vector<uint64_t>* collide) = 0;

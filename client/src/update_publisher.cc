@@ -170,8 +170,12 @@ Status UpdatePublisher::Maintain() {
         }
         const uint64_t epoch = status_msg_.epoch();
         if (epoch != 0 && epoch == epoch_) {
-          // This daemon erased our objects: we hung (or were cut off) longer than its lease.
+          // This daemon erased our objects (we hung or were cut off longer than its lease), or
+          // it may have missed some of our batches.
           for (uint32_t p : status_msg_.expired_producers()) {
+            if (p == producer_) restate_due_ = true;
+          }
+          for (uint32_t p : status_msg_.resync_producers()) {
             if (p == producer_) restate_due_ = true;
           }
           return;
@@ -200,8 +204,12 @@ Status UpdatePublisher::Maintain() {
 
 Status UpdatePublisher::Restate() {
   const uint32_t k = dim_;
+  if (k == 0) {  // nothing was ever published: the daemon holds nothing of ours
+    restate_due_ = false;
+    return Status::Ok();
+  }
   auto it = kept_.begin();
-  while (it != kept_.end()) {
+  do {  // at least one batch: an empty restate erases what the daemon still holds of ours
     restate_batch_.Clear();
     restate_batch_.set_restate(true);
     restate_batch_.set_dim(k);
@@ -226,7 +234,7 @@ Status UpdatePublisher::Restate() {
     // the producer rests (Maintain) and no other batch follows.
     restate_batch_.set_end_of_frame(it == kept_.end());
     if (Status s = Stamp(&restate_batch_); !s.ok()) return s;  // due again next time
-  }
+  } while (it != kept_.end());
   restate_due_ = false;
   ++restates_;
   return Status::Ok();

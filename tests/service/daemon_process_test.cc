@@ -80,6 +80,26 @@ class Process {
   bool exited_ = false;
 };
 
+// What a test that follows the daemon's overlap set opens: a connection, a status collector,
+// an event subscriber and a snapshot requester, both matched to the daemon.
+struct Watcher {
+  struct {
+    std::unique_ptr<client::Connection> connection;
+    std::unique_ptr<client::EventSubscriber> sub;
+    std::unique_ptr<client::SnapshotRequester> requests;
+  } dds;
+  std::unique_ptr<RejectionCollector> status;
+};
+
+void OpenWatcher(const service::Config& c, Watcher* w) {
+  BP_ASSERT_OK(client::Connection::Open(ClientOptions(c), &w->dds.connection));
+  w->status = std::make_unique<RejectionCollector>(*w->dds.connection);
+  BP_ASSERT_OK(client::EventSubscriber::Create(*w->dds.connection, 1000, &w->dds.sub));
+  BP_ASSERT_OK(client::SnapshotRequester::Create(*w->dds.connection, &w->dds.requests));
+  BP_ASSERT_OK(w->dds.sub->WaitForDaemon(20s));
+  BP_ASSERT_OK(w->dds.requests->WaitForDaemon(20s));
+}
+
 std::string ReadFile(const std::string& path) {
   std::ifstream in(path);
   std::stringstream s;
@@ -226,15 +246,10 @@ TEST(DaemonProcess, AKilledDaemonIsReplacedAndRestatingProducersRestoreTheExactS
   auto daemon =
       std::make_unique<Process>(std::vector<std::string>{"--config", config}, dir + "/log1");
 
-  std::unique_ptr<client::Connection> connection;
-  BP_ASSERT_OK(client::Connection::Open(ClientOptions(c), &connection));
-  RejectionCollector status(*connection);
-  std::unique_ptr<client::EventSubscriber> sub;
-  BP_ASSERT_OK(client::EventSubscriber::Create(*connection, 1000, &sub));
-  std::unique_ptr<client::SnapshotRequester> requests;
-  BP_ASSERT_OK(client::SnapshotRequester::Create(*connection, &requests));
-  BP_ASSERT_OK(sub->WaitForDaemon(20s));
-  BP_ASSERT_OK(requests->WaitForDaemon(20s));
+  Watcher watcher;
+  ASSERT_NO_FATAL_FAILURE(OpenWatcher(c, &watcher));
+  auto& [connection, sub, requests] = watcher.dds;
+  RejectionCollector& status = *watcher.status;
   client::PublisherOptions options;
   options.restate_on_restart = true;
   std::unique_ptr<client::UpdatePublisher> pub;
@@ -314,15 +329,10 @@ TEST(DaemonProcess, AKilledProducersObjectsAreErasedAfterTheLease) {
   const std::string config = WriteConfig(dir, ConfigText(c, /*lease_s=*/2.0));
   Process daemon({"--config", config}, dir + "/log");
 
-  std::unique_ptr<client::Connection> connection;
-  BP_ASSERT_OK(client::Connection::Open(ClientOptions(c), &connection));
-  RejectionCollector status(*connection);
-  std::unique_ptr<client::EventSubscriber> sub;
-  BP_ASSERT_OK(client::EventSubscriber::Create(*connection, 1000, &sub));
-  std::unique_ptr<client::SnapshotRequester> requests;
-  BP_ASSERT_OK(client::SnapshotRequester::Create(*connection, &requests));
-  BP_ASSERT_OK(sub->WaitForDaemon(20s));
-  BP_ASSERT_OK(requests->WaitForDaemon(20s));
+  Watcher watcher;
+  ASSERT_NO_FATAL_FAILURE(OpenWatcher(c, &watcher));
+  auto& [connection, sub, requests] = watcher.dds;
+  RejectionCollector& status = *watcher.status;
   // Producer 3 rests in this process; producer 8 is bpctl scene, killed below.
   std::unique_ptr<client::UpdatePublisher> resting;
   BP_ASSERT_OK(client::UpdatePublisher::Create(*connection, 3, 5000ms, &resting));
@@ -381,6 +391,72 @@ TEST(DaemonProcess, AKilledProducersObjectsAreErasedAfterTheLease) {
   EXPECT_EQ(daemon.Wait(), 0);
   const std::string log = ReadFile(dir + "/log");
   EXPECT_NE(log.find("producer 8: its writer has not been alive"), std::string::npos) << log;
+}
+
+// Issue 8: a producer (bpctl scene) stopped with SIGSTOP for 4 s: longer than Cyclone's
+// participant lease (2 s), shorter than producers.lease_s (10 s). DDS drops it and discovers it
+// again, and batches around the stall may be lost; the daemon asks it to restate. It keeps its
+// id, nothing expires, and when the scene ends the daemon holds exactly the scene's last frame.
+TEST(DaemonProcess, AProducerStoppedLongerThanTheParticipantLeaseEndsWithTheExactSet) {
+  ScratchDir scratch;
+  const std::string& dir = scratch.path();
+  service::Config c = TestConfig(kDomain);
+  const std::string config = WriteConfig(dir, ConfigText(c));
+  Process daemon({"--config", config}, dir + "/log");
+
+  Watcher watcher;
+  ASSERT_NO_FATAL_FAILURE(OpenWatcher(c, &watcher));
+  auto& [connection, sub, requests] = watcher.dds;
+  RejectionCollector& status = *watcher.status;
+
+  SceneParams params;
+  params.n = 300;
+  params.moving = 40;
+  params.churn = 4;
+  params.seed = 6;
+  constexpr uint64_t kFrames = 240;  // 8 s at 30 Hz, plus the stall
+  Process scene(
+      {"--config", config, "scene", "-n", "300", "--moving", "40", "--churn", "4", "--seed", "6",
+       "--rate", "30", "--frames", std::to_string(kFrames), "--producer", "8", "--quiet"},
+      dir + "/scene.log", BPCTL);
+  client::OverlapView view;
+  ASSERT_TRUE(SyncUntil(
+      *sub, *requests, view, [](const client::OverlapView& v) { return v.frame() >= 30; }, 30s))
+      << ReadFile(dir + "/scene.log");
+  scene.Signal(SIGSTOP);
+  std::this_thread::sleep_for(4s);
+  scene.Signal(SIGCONT);
+  ASSERT_EQ(scene.Wait(60s), 0) << ReadFile(dir + "/scene.log");
+
+  Scene expected(params);
+  FrameOps ops;
+  ops.inserts = expected.Initial();
+  Oracle<3> oracle;
+  PairList unc, col;
+  for (uint64_t frame = 0; frame <= kFrames; ++frame) {
+    if (frame > 0) expected.NextFrame(&ops);
+    oracle.Apply(8, ops);
+    oracle.Query(&unc, &col);
+  }
+  ASSERT_GT(oracle.Pairs().size(), 10u);
+  const bool exact = SyncUntil(
+      *sub, *requests, view,
+      [&](const client::OverlapView& v) { return v.SortedPairs() == oracle.Pairs(); }, 20s);
+  EXPECT_TRUE(exact) << "the daemon's set differs from the scene's last frame: "
+                     << view.SortedPairs().size() << " pairs, the oracle " << oracle.Pairs().size()
+                     << "\n"
+                     << ReadFile(dir + "/log");
+  EXPECT_EQ(view.contradictions(), 0u);
+  status.Collect(300ms);
+  ASSERT_FALSE(status.reports().empty());
+  EXPECT_EQ(status.reports().back().objects(), 300u);
+  EXPECT_EQ(status.reports().back().producers_expired(), 0u);
+  daemon.Signal(SIGTERM);
+  EXPECT_EQ(daemon.Wait(), 0);
+  const std::string log = ReadFile(dir + "/log");
+  // The stall was seen: DDS dropped the producer (or lost batches) and a restate was asked for.
+  EXPECT_NE(log.find("asking it to restate"), std::string::npos) << log;
+  EXPECT_EQ(log.find("erased its"), std::string::npos) << log;
 }
 
 }  // namespace

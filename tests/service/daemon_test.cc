@@ -1,6 +1,7 @@
 // The daemon in-process with real Cyclone DDS on loopback (domain BP_TEST_DOMAIN, a partition
 // per test): scripted scenes against the oracle frame by frame, every bad input, several
 // producers, tick frames, event parts, clean shutdown.
+#include <algorithm>
 #include <atomic>
 #include <cmath>
 #include <condition_variable>
@@ -630,9 +631,6 @@ TEST(Daemon, LateLaggingAndRestartedSubscribersResyncFromSnapshots) {
   EXPECT_GE(daemon->daemon().snapshots(), 1u);
 }
 
-}  // namespace
-}  // namespace bp::test
-
 namespace bp::test {
 namespace {
 
@@ -966,6 +964,116 @@ TEST(Daemon, AProducerTheDaemonExpiredWhileItHungRestates) {
   ExpectFrame(*client.events, 2, {}, {});
   client.status->Collect(200ms);
   for (const auto& r : client.status->rejections()) ADD_FAILURE() << r.message();
+}
+
+}  // namespace
+}  // namespace bp::test
+
+// Issue 8: batches lost in DDS (a producer stalled longer than Cyclone's participant lease was
+// dropped and discovered again) show as a batch_seq gap. The daemon asks the producer to restate
+// (DaemonStatus.resync_producers), and a restate states the producer's whole set: an object it
+// no longer has is erased, a box that diverged is replaced.
+TEST(Daemon, ABatchSeqGapIsRepairedByARestateTheDaemonAsksFor) {
+  service::Config config = TestConfig(kDomain);
+  InProcessDaemon daemon(config);
+  Client client(config);
+  client::PublisherOptions options;
+  options.restate_on_restart = true;
+  std::unique_ptr<client::UpdatePublisher> pub;
+  BP_ASSERT_OK(client::UpdatePublisher::Create(*client.connection, 2, options, &pub));
+  BP_ASSERT_OK(pub->WaitForDaemon(10s));
+  const uint64_t k10 = service::GlobalKey(2, 10), k11 = service::GlobalKey(2, 11);
+  const uint64_t k12 = service::GlobalKey(2, 12), k13 = service::GlobalKey(2, 13);
+  wire::UpdateBatch b1 = InsertBatch({{10, Cube(0)}, {11, Cube(0.5f)}, {12, Cube(5)}});
+  BP_ASSERT_OK(pub->Publish(&b1));  // batch_seq 1
+  ExpectFrame(*client.events, 1, {}, {{k10, k11}});
+  // What the daemon holds but the producer does not: a batch whose batch_seq skips one, as if
+  // the one before it had been lost. It inserts 13 next to 12 and moves 10 away from 11.
+  wire::UpdateBatch stray = InsertBatch({{13, Cube(5.5f)}});
+  client::AddBox<3>(stray.mutable_updates(), 10, Cube(20));
+  stray.set_version(wire::SCHEMA_VERSION_1);
+  stray.set_producer(2);
+  stray.set_batch_seq(3);
+  BP_ASSERT_OK(pub->PublishRaw(stray.SerializeAsString()));  // not kept by the publisher
+  ExpectFrame(*client.events, 2, {{k10, k11}}, {{k12, k13}});
+  ASSERT_TRUE(client.status->WaitUntil([](const wire::DaemonStatus& r) {
+    return std::count(r.resync_producers().begin(), r.resync_producers().end(), 2u) == 1;
+  }));
+  for (int i = 0; i < 200 && pub->restates() == 0; ++i) {
+    std::this_thread::sleep_for(10ms);
+    BP_ASSERT_OK(pub->Maintain());
+  }
+  ASSERT_EQ(pub->restates(), 1u);
+  // The restate (one batch, closing frame 3) names 10, 11 and 12 with their boxes: 10 is back
+  // next to 11, and 13, which it does not name, is erased.
+  ExpectFrame(*client.events, 3, {{k12, k13}}, {{k10, k11}});
+  FrameEvents frame3;
+  ASSERT_TRUE(client.events->WaitFrame(3, &frame3));
+  EXPECT_EQ(frame3.last.objects(), 3u);
+  // The sequence goes on from the restate without another request.
+  wire::UpdateBatch b2;
+  b2.set_dim(3);
+  b2.set_end_of_frame(true);
+  b2.add_erases(11);
+  BP_ASSERT_OK(pub->Publish(&b2));
+  ExpectFrame(*client.events, 4, {{k10, k11}}, {});
+  std::this_thread::sleep_for(200ms);
+  BP_ASSERT_OK(pub->Maintain());
+  EXPECT_EQ(pub->restates(), 1u);
+  for (const auto& r : client.status->rejections()) ADD_FAILURE() << r.message();
+}
+
+// A restate run with a gap inside names too little: the daemon erases nothing and asks again;
+// a run cut short by an ordinary batch is asked for again too.
+TEST(Daemon, ARestateRunWithAGapErasesNothingAndIsAskedForAgain) {
+  service::Config config = TestConfig(kDomain);
+  InProcessDaemon daemon(config);
+  Client client(config);
+  auto pub = client.Publisher(3);  // raw batches with chosen batch_seq values
+  auto send = [&](wire::UpdateBatch batch, uint64_t seq, bool restate) {
+    batch.set_version(wire::SCHEMA_VERSION_1);
+    batch.set_producer(3);
+    batch.set_batch_seq(seq);
+    batch.set_restate(restate);
+    BP_ASSERT_OK(pub->PublishRaw(batch.SerializeAsString()));
+  };
+  auto requests = [&]() {
+    size_t n = 0;
+    for (const auto& r : client.status->reports()) {
+      n += static_cast<size_t>(
+          std::count(r.resync_producers().begin(), r.resync_producers().end(), 3u));
+    }
+    return n;
+  };
+  auto objects_at = [&](uint64_t frame, uint64_t objects) {
+    FrameEvents got;
+    return client.events->WaitFrame(frame, &got) && got.last.objects() == objects;
+  };
+  send(InsertBatch({{1, Cube(0)}, {2, Cube(0.5f)}}), 1, false);
+  ExpectFrame(*client.events, 1, {}, {{service::GlobalKey(3, 1), service::GlobalKey(3, 2)}});
+  wire::UpdateBatch first = InsertBatch({{1, Cube(0)}});
+  first.set_end_of_frame(false);
+  send(first, 2, true);
+  send(InsertBatch({}), 4, true);  // batch 3 of the run was lost
+  ExpectFrame(*client.events, 2, {}, {});
+  ASSERT_TRUE(objects_at(2, 2));
+  ASSERT_TRUE(client.status->WaitUntil([&](const wire::DaemonStatus&) { return requests() == 1; }));
+  // While the request is open, another gap asks nothing more.
+  send(InsertBatch({}), 6, false);
+  ExpectFrame(*client.events, 3, {}, {});
+  // A run cut short by an ordinary batch: 2 stays.
+  send(first, 7, true);
+  send(InsertBatch({}), 8, false);
+  ExpectFrame(*client.events, 4, {}, {});
+  ASSERT_TRUE(objects_at(4, 2));
+  ASSERT_TRUE(client.status->WaitUntil([&](const wire::DaemonStatus&) { return requests() == 2; }));
+  // A whole run: 2 is erased.
+  send(first, 9, true);
+  send(InsertBatch({}), 10, true);
+  ExpectFrame(*client.events, 5, {{service::GlobalKey(3, 1), service::GlobalKey(3, 2)}}, {});
+  ASSERT_TRUE(objects_at(5, 1));
+  client.status->Collect(200ms);
+  EXPECT_EQ(requests(), 2u);
 }
 
 }  // namespace

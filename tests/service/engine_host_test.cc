@@ -377,7 +377,7 @@ TEST(EngineHost, EraseProducerErasesThatProducersObjectsOnly) {
   more.add_erases(3);
   AddBox(more.mutable_inserts(), 9, {0, 0}, {1, 1});
   ASSERT_TRUE(Apply(*host, more).rejects.empty());
-  EXPECT_EQ(host->EraseProducer(2), 4u);
+  EXPECT_EQ(host->EraseProducer(2, nullptr), 4u);
   EXPECT_EQ(host->Objects(), 8u);
   host->Query(&unc, &col);
   EXPECT_EQ(unc.size() / 2, 66u - 28u);  // every pair with one of producer 2's 4 live objects
@@ -385,8 +385,38 @@ TEST(EngineHost, EraseProducerErasesThatProducersObjectsOnly) {
   for (size_t i = 0; i < unc.size(); i += 2) {
     EXPECT_TRUE((unc[i] >> kProducerShift) == 2 || (unc[i + 1] >> kProducerShift) == 2);
   }
-  EXPECT_EQ(host->EraseProducer(2), 0u);
+  EXPECT_EQ(host->EraseProducer(2, nullptr), 0u);
   EXPECT_EQ(host->Overlaps(), 28u);
+}
+
+TEST(EngineHost, EraseProducerKeepsTheListedIds) {
+  auto host = MakeHost("segmented_sap", 2, CoordinateType::kDouble);
+  for (uint32_t producer : {1u, 2u}) {
+    wire::UpdateBatch b = Batch(producer, 2);
+    for (uint64_t id = 0; id < 6; ++id) {
+      AddBox(b.mutable_inserts(), id, {0.1 * static_cast<double>(id), 0}, {1, 1});
+    }
+    ASSERT_TRUE(Apply(*host, b).rejects.empty());
+  }
+  std::vector<uint64_t> unc, col;
+  host->Query(&unc, &col);
+  // The end of a restate of producer 2 that named 1, 4 and 7 (7 it does not hold).
+  const std::vector<uint64_t> keep = {1, 4, 7};
+  EXPECT_EQ(host->EraseProducer(2, &keep), 4u);
+  EXPECT_EQ(host->Objects(), 8u);
+  host->Query(&unc, &col);
+  EXPECT_TRUE(col.empty());
+  // All 12 boxes overlapped (66 pairs); the 8 left still do (28).
+  EXPECT_EQ(unc.size() / 2, 66u - 28u);
+  EXPECT_EQ(host->Overlaps(), 28u);
+  const std::set<uint64_t> gone = {GlobalKey(2, 0), GlobalKey(2, 2), GlobalKey(2, 3),
+                                   GlobalKey(2, 5)};
+  for (size_t i = 0; i < unc.size(); i += 2) {
+    EXPECT_TRUE(gone.contains(unc[i]) || gone.contains(unc[i + 1])) << unc[i] << " " << unc[i + 1];
+  }
+  const std::vector<uint64_t> none;
+  EXPECT_EQ(host->EraseProducer(1, &none), 6u);
+  EXPECT_EQ(host->Objects(), 2u);
 }
 
 TEST(EngineHost, FiltersMatchABruteForceFilteredOracle) {

@@ -15,9 +15,12 @@
 // empty), the next Publish or Maintain first sends every kept object as a restate insert
 // (UpdateBatch.restate, in batches of `restate_batch_items`, the last closing a frame), then the
 // caller's batch. It restates too when the daemon reports that it erased this producer's objects
-// (DaemonStatus.expired_producers: the process hung longer than producers.lease_s). Updates
-// that reach the new daemon before the producer learned of it are refused (UNKNOWN_ID, in the
-// daemon's status) and the restate that follows carries their boxes: nothing is lost.
+// (DaemonStatus.expired_producers: the process hung longer than producers.lease_s) or that it
+// may have missed some of its batches (DaemonStatus.resync_producers: a batch_seq gap, or DDS
+// dropped and rediscovered the producer after a stall longer than the participant lease). A
+// restate states the whole set: the daemon erases this producer's objects it does not name.
+// Updates that reach the new daemon before the producer learned of it are refused (UNKNOWN_ID,
+// in the daemon's status) and the restate that follows carries their boxes: nothing is lost.
 //
 // Thread safety: one thread at a time per publisher.
 #pragma once
