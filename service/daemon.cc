@@ -296,14 +296,11 @@ void Daemon::FollowRediscoveredWriter(dds_instance_handle_t writer) {
 
 void Daemon::RequestResync(const std::vector<uint32_t>& producers, const char* why) {
   for (uint32_t producer : producers) {
-    if (resync_pending_.insert(producer).second) resync_now_.push_back(producer);
-  }
-  if (resync_now_.empty()) return;
-  for (uint32_t producer : resync_now_) {
-    spdlog::warn("producer {}: {}; asking it to restate its objects", producer, why);
+    if (resync_.insert(producer).second) {
+      spdlog::warn("producer {}: {}; asking it to restate its objects", producer, why);
+    }
   }
   PublishStatus(wire::SERVING, false);
-  resync_now_.clear();
 }
 
 bool Daemon::TrackSequence(uint32_t producer) {
@@ -312,45 +309,59 @@ bool Daemon::TrackSequence(uint32_t producer) {
   const bool gap = seq != 0 && last_seq != 0 && seq != last_seq + 1;
   if (gap) spdlog::warn("producer {}: batch_seq jumped from {} to {}", producer, last_seq, seq);
   last_seq = seq;
-  if (!batch_.restate()) {
-    // A run cut short names too little to erase anything: it is asked for again.
-    const bool cut_short = restating_.erase(producer) > 0;
-    return !gap && !cut_short;
+  const auto run = runs_.find(producer);
+  const uint64_t first = batch_.restate() ? batch_.restate_run() : 0;
+  if (first == 0) {
+    if (run == runs_.end()) return !gap;
+    runs_.erase(run);  // a run cut short names too little to erase anything
+    return false;
   }
-  const auto [run, first] = restating_.try_emplace(producer);
-  if (first) {
-    resync_pending_.erase(producer);  // answered; a gap before the run is covered by it
+  if (first == seq) {  // a run starts: what was lost before it, it covers
+    runs_[producer] = RestateRun{seq, false, {}};
     return true;
   }
-  if (gap) {  // a batch of the run was lost
-    restating_.erase(run);
+  if (run == runs_.end() || run->second.first != first) {  // its first batch was lost
+    runs_[producer] = RestateRun{first, true, {}};
+    return false;
+  }
+  if (gap && !run->second.broken) {
+    run->second.broken = true;
+    run->second.ids = {};
     return false;
   }
   return true;
 }
 
 void Daemon::ContinueRestate(uint32_t producer) {
-  auto run = restating_.find(producer);
-  if (run == restating_.end()) return;
-  std::vector<uint64_t>& ids = run->second;
-  for (uint64_t id : batch_.inserts().ids()) ids.push_back(id);
-  if (!batch_.end_of_frame()) return;
-  std::sort(ids.begin(), ids.end());
-  const uint64_t erased = host_->EraseProducer(producer, &ids);
-  if (erased > 0) {
-    spdlog::warn("producer {}: restated {} objects; erased {} it no longer has", producer,
-                 ids.size(), erased);
-    interval_updates_ += erased;
+  auto it = runs_.find(producer);
+  if (it == runs_.end()) return;
+  RestateRun& run = it->second;
+  if (!run.broken) {
+    for (uint64_t id : batch_.inserts().ids()) run.ids.push_back(id);
   }
-  restating_.erase(run);
+  if (!batch_.end_of_frame()) return;
+  if (run.broken) {
+    runs_.erase(it);
+    spdlog::warn("producer {}: its restate missed a batch and erased nothing", producer);
+    resync_.insert(producer);
+    PublishStatus(wire::SERVING, false);  // it has now sent the whole run: it restates again
+    return;
+  }
+  std::sort(run.ids.begin(), run.ids.end());
+  const uint64_t erased = host_->EraseProducer(producer, &run.ids);
+  spdlog::info("producer {}: restated {} objects, erased {} it no longer has", producer,
+               run.ids.size(), erased);
+  interval_updates_ += erased;
+  runs_.erase(it);
+  resync_.erase(producer);
 }
 
 void Daemon::ExpireProducer(uint32_t producer, const std::string& why, bool lease) {
   const uint64_t erased = host_->EraseProducer(producer, nullptr);
   claims_.erase(producer);
   last_batch_seq_.erase(producer);
-  restating_.erase(producer);
-  resync_pending_.erase(producer);
+  runs_.erase(producer);
+  resync_.erase(producer);
   if (lease) producers_expired_.fetch_add(1);
   if (lease || erased > 0) {
     spdlog::warn("producer {}: {}; erased its {} objects", producer, why, erased);
@@ -384,12 +395,25 @@ void Daemon::ProcessPayload(std::span<const uint8_t> payload, const dds_sample_i
   if (!AdmitBatch(payload, config_.limits, &batch_, &refused)) {
     // The producer is known once the payload parsed (0 for oversize or malformed payloads).
     // A refused batch of the writer holding the id is not a gap in its sequence.
-    const auto claim = claims_.find(batch_.producer());
-    if (claim != claims_.end() && claim->second.writer == info.publication_handle &&
-        batch_.batch_seq() != 0) {
-      last_batch_seq_[batch_.producer()] = batch_.batch_seq();
+    // A restate batch refused breaks its run (it would erase the objects the batch named).
+    const uint32_t producer = batch_.producer();
+    const auto claim = claims_.find(producer);
+    bool broke = false;
+    if (claim != claims_.end() && claim->second.writer == info.publication_handle) {
+      if (batch_.batch_seq() != 0) last_batch_seq_[producer] = batch_.batch_seq();
+      auto run = runs_.find(producer);
+      if (batch_.restate() && batch_.restate_run() != 0 &&
+          (run == runs_.end() || run->second.first != batch_.restate_run())) {
+        run = runs_.insert_or_assign(producer, RestateRun{batch_.restate_run(), false, {}}).first;
+      }
+      if (run != runs_.end() && !run->second.broken) {
+        run->second.broken = true;
+        run->second.ids = {};
+        broke = true;
+      }
     }
-    batch_reject(batch_.producer(), refused.reason, std::move(refused.message));
+    batch_reject(producer, refused.reason, std::move(refused.message));
+    if (broke) RequestResync({producer}, "a batch of its restate was refused");
     return;
   }
   const uint32_t producer = batch_.producer();
@@ -399,20 +423,21 @@ void Daemon::ProcessPayload(std::span<const uint8_t> payload, const dds_sample_i
                      " is in use by another live writer; give each producer its own id");
     return;
   }
-  const bool in_sequence = TrackSequence(producer);
+  if (!TrackSequence(producer)) {
+    RequestResync({producer}, "batches were lost (a batch_seq gap, or a restate run cut short)");
+  }
 
   ApplyCounts counts;
   host_->Apply(
       batch_, [&](Reject&& r) { ReportRejection(producer, &batch_, std::move(r)); }, &counts);
   FlushRejections();
-  if (batch_.restate()) ContinueRestate(producer);
+  if (batch_.restate() && batch_.restate_run() != 0) ContinueRestate(producer);
   interval_updates_ += counts.inserts + counts.updates + counts.erases;
   frame_dirty_ = true;
   frame_work_ += Clock::now() - start;
   if (config_.frames.boundary == FrameBoundary::kEndOfFrame && batch_.end_of_frame()) {
     RunFrame(producer, batch_.frame(), batch_.sent_time_ns());
   }
-  if (!in_sequence) RequestResync({producer}, "batches were lost (a batch_seq gap)");
 }
 
 void Daemon::ReportRejection(uint32_t producer, const wire::UpdateBatch* batch, Reject&& r) {
@@ -597,7 +622,14 @@ void Daemon::PublishStatus(wire::Health health, bool with_interval) {
   status_msg_.set_epoch(epoch_);
   status_msg_.set_producers_expired(producers_expired_.load());
   for (uint32_t p : expired_now_) status_msg_.add_expired_producers(p);
-  for (uint32_t p : resync_now_) status_msg_.add_resync_producers(p);
+  for (uint32_t p : resync_) {
+    wire::ResyncRequest* request = status_msg_.add_resync();
+    request->set_producer(p);
+    const auto seen = last_batch_seq_.find(p);
+    request->set_seen_batch_seq(seen == last_batch_seq_.end() ? 0 : seen->second);
+  }
+  status_msg_.set_max_batch_items(config_.limits.max_batch_items);
+  status_msg_.set_max_batch_bytes(config_.limits.max_batch_bytes);
   buffer_.clear();
   if (!status_msg_.SerializeToString(&buffer_)) {
     spdlog::warn("status report does not serialise");

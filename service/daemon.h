@@ -27,9 +27,9 @@
 #include <chrono>
 #include <cstdint>
 #include <memory>
+#include <set>
 #include <string>
 #include <unordered_map>
-#include <unordered_set>
 #include <vector>
 
 #include "broadphase.pb.h"
@@ -81,13 +81,14 @@ class Daemon {
   // has just discovered again under a new handle moves to that handle; its producers are asked
   // to restate (batches around the stall may be lost, and a resting producer shows no gap).
   void FollowRediscoveredWriter(dds_instance_handle_t writer);
-  // Asks producers to restate (DaemonStatus.resync_producers) unless already asked.
+  // Asks producers to restate (DaemonStatus.resync, listed in every report until a whole
+  // restate run arrives) and publishes a report.
   void RequestResync(const std::vector<uint32_t>& producers, const char* why);
   // Keeps track of a producer's batch_seq and restate runs, before its batch is applied.
-  // Returns false if a resync must be asked for after it (batches were lost).
+  // Returns false if batches were lost (a gap, a restate run missing a batch or cut short).
   bool TrackSequence(uint32_t producer);
-  // After a restate batch was applied: collects its ids; the run's last batch erases the
-  // producer's objects it did not name.
+  // After a restate batch was applied: collects its ids; the last batch of a whole run erases
+  // the producer's objects it did not name and answers the request.
   void ContinueRestate(uint32_t producer);
   // Takes and processes up to max_rounds rounds of batches; with until_stop, also returns as
   // soon as a stop is requested.
@@ -152,11 +153,17 @@ class Daemon {
   };
   std::unordered_map<uint32_t, Claim> claims_;
   std::unordered_map<uint32_t, uint64_t> last_batch_seq_;
-  // Restate runs under way: the producer-local ids named so far.
-  std::unordered_map<uint32_t, std::vector<uint64_t>> restating_;
-  // Producers asked to restate that have not started yet.
-  std::unordered_set<uint32_t> resync_pending_;
-  std::vector<uint32_t> resync_now_;  // listed in the status report being published
+  // Restate runs under way, by producer: the batch_seq of the run's first batch and the
+  // producer-local ids named so far. A broken run (a batch missing or refused) keeps no ids and
+  // erases nothing.
+  struct RestateRun {
+    uint64_t first = 0;
+    bool broken = false;
+    std::vector<uint64_t> ids;
+  };
+  std::unordered_map<uint32_t, RestateRun> runs_;
+  // Producers asked to restate, until a whole run arrives (sorted for the reports).
+  std::set<uint32_t> resync_;
   // Writers of the updates topic that are not alive (lost liveliness or left), since when.
   std::unordered_map<dds_instance_handle_t, std::chrono::steady_clock::time_point> down_since_;
   std::vector<dds::WriterLiveliness::Change> liveliness_changes_;

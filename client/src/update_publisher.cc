@@ -169,18 +169,25 @@ Status UpdatePublisher::Maintain() {
           return;
         }
         const uint64_t epoch = status_msg_.epoch();
-        if (epoch != 0 && epoch == epoch_) {
-          // This daemon erased our objects (we hung or were cut off longer than its lease), or
-          // it may have missed some of our batches.
+        if (epoch == 0) return;
+        if (epoch == epoch_) {
+          // A report read before comes again when the status reader matches again.
+          if (r.seq <= status_seq_) return;
+          status_seq_ = r.seq;
+          ReadLimits();
+          // This daemon erased our objects (we hung or were cut off longer than its lease).
           for (uint32_t p : status_msg_.expired_producers()) {
             if (p == producer_) restate_due_ = true;
           }
-          for (uint32_t p : status_msg_.resync_producers()) {
-            if (p == producer_) restate_due_ = true;
+          // It may have missed some of our batches: restate, unless it asked before it saw the
+          // end of our last restate (which answers it).
+          for (const auto& request : status_msg_.resync()) {
+            if (request.producer() == producer_ && request.seen_batch_seq() >= last_run_end_) {
+              restate_due_ = true;
+            }
           }
           return;
         }
-        if (epoch == 0) return;
         if (std::find(retired_epochs_.begin(), retired_epochs_.end(), epoch) !=
             retired_epochs_.end()) {
           return;  // a late report of a daemon already replaced
@@ -194,6 +201,8 @@ Status UpdatePublisher::Maintain() {
         if (epoch_ != 0) retired_epochs_.push_back(epoch_);
         if (epoch_ != 0 || published_before_epoch_) restate_due_ = true;
         epoch_ = epoch;
+        status_seq_ = r.seq;
+        ReadLimits();
       },
       &taken);
   if (!s.ok()) return s;
@@ -202,22 +211,39 @@ Status UpdatePublisher::Maintain() {
   return Status::Ok();
 }
 
+void UpdatePublisher::ReadLimits() {
+  daemon_max_items_ = status_msg_.max_batch_items();
+  daemon_max_bytes_ = status_msg_.max_batch_bytes();
+}
+
 Status UpdatePublisher::Restate() {
   const uint32_t k = dim_;
   if (k == 0) {  // nothing was ever published: the daemon holds nothing of ours
     restate_due_ = false;
     return Status::Ok();
   }
+  // Batches the daemon accepts: at most its max_batch_items, and within its max_batch_bytes (an
+  // object costs at most 8 + 2 * 6 * 8 bytes of id and corners plus 21 of attributes).
+  uint64_t items = options_.restate_batch_items;
+  if (daemon_max_items_ > 0) items = std::min(items, daemon_max_items_);
+  if (daemon_max_bytes_ > 0) {
+    constexpr uint64_t kItemBytes = 128, kBatchBytes = 256;
+    items = std::min(items, daemon_max_bytes_ > kBatchBytes + kItemBytes
+                                ? (daemon_max_bytes_ - kBatchBytes) / kItemBytes
+                                : uint64_t{1});
+  }
+  const uint64_t run = seq_ + 1;  // the batch_seq of the run's first batch
   auto it = kept_.begin();
   do {  // at least one batch: an empty restate erases what the daemon still holds of ours
     restate_batch_.Clear();
     restate_batch_.set_restate(true);
+    restate_batch_.set_restate_run(run);
     restate_batch_.set_dim(k);
     restate_batch_.set_frame(frame_);
     wire::BoxArray* inserts = restate_batch_.mutable_inserts();
     bool attributes = false;
     const auto from = it;
-    for (uint32_t n = 0; n < options_.restate_batch_items && it != kept_.end(); ++n, ++it) {
+    for (uint64_t n = 0; n < items && it != kept_.end(); ++n, ++it) {
       inserts->add_ids(it->first);
       for (uint32_t a = 0; a < k; ++a) inserts->add_lo64(it->second.lo[a]);
       for (uint32_t a = 0; a < k; ++a) inserts->add_hi64(it->second.hi[a]);
@@ -235,6 +261,7 @@ Status UpdatePublisher::Restate() {
     restate_batch_.set_end_of_frame(it == kept_.end());
     if (Status s = Stamp(&restate_batch_); !s.ok()) return s;  // due again next time
   } while (it != kept_.end());
+  last_run_end_ = seq_;
   restate_due_ = false;
   ++restates_;
   return Status::Ok();

@@ -454,8 +454,10 @@ TEST(DaemonProcess, AProducerStoppedLongerThanTheParticipantLeaseEndsWithTheExac
   daemon.Signal(SIGTERM);
   EXPECT_EQ(daemon.Wait(), 0);
   const std::string log = ReadFile(dir + "/log");
-  // The stall was seen: DDS dropped the producer (or lost batches) and a restate was asked for.
+  // The stall was seen (DDS dropped the producer, or batches were lost), a restate was asked
+  // for, and a whole one arrived.
   EXPECT_NE(log.find("asking it to restate"), std::string::npos) << log;
+  EXPECT_NE(log.find("producer 8: restated 300 objects"), std::string::npos) << log;
   EXPECT_EQ(log.find("erased its"), std::string::npos) << log;
 }
 

@@ -631,6 +631,9 @@ TEST(Daemon, LateLaggingAndRestartedSubscribersResyncFromSnapshots) {
   EXPECT_GE(daemon->daemon().snapshots(), 1u);
 }
 
+}  // namespace
+}  // namespace bp::test
+
 namespace bp::test {
 namespace {
 
@@ -949,12 +952,12 @@ TEST(Daemon, AProducerTheDaemonExpiredWhileItHungRestates) {
   report.set_health(wire::SERVING);
   report.set_epoch(pub->daemon_epoch());
   report.add_expired_producers(7);  // another producer: not this one's business
-  BP_ASSERT_OK(fake.Write(1, report.SerializeAsString()));
+  BP_ASSERT_OK(fake.Write(1001, report.SerializeAsString()));  // after the daemon's own
   std::this_thread::sleep_for(200ms);
   BP_ASSERT_OK(pub->Maintain());
   EXPECT_EQ(pub->restates(), 0u);
   report.add_expired_producers(1);
-  BP_ASSERT_OK(fake.Write(2, report.SerializeAsString()));
+  BP_ASSERT_OK(fake.Write(1002, report.SerializeAsString()));
   for (int i = 0; i < 100 && pub->restates() == 0; ++i) {
     std::this_thread::sleep_for(10ms);
     BP_ASSERT_OK(pub->Maintain());
@@ -966,13 +969,10 @@ TEST(Daemon, AProducerTheDaemonExpiredWhileItHungRestates) {
   for (const auto& r : client.status->rejections()) ADD_FAILURE() << r.message();
 }
 
-}  // namespace
-}  // namespace bp::test
-
 // Issue 8: batches lost in DDS (a producer stalled longer than Cyclone's participant lease was
 // dropped and discovered again) show as a batch_seq gap. The daemon asks the producer to restate
-// (DaemonStatus.resync_producers), and a restate states the producer's whole set: an object it
-// no longer has is erased, a box that diverged is replaced.
+// (DaemonStatus.resync), and a restate states the producer's whole set: an object it no longer
+// has is erased, a box that diverged is replaced.
 TEST(Daemon, ABatchSeqGapIsRepairedByARestateTheDaemonAsksFor) {
   service::Config config = TestConfig(kDomain);
   InProcessDaemon daemon(config);
@@ -987,93 +987,129 @@ TEST(Daemon, ABatchSeqGapIsRepairedByARestateTheDaemonAsksFor) {
   wire::UpdateBatch b1 = InsertBatch({{10, Cube(0)}, {11, Cube(0.5f)}, {12, Cube(5)}});
   BP_ASSERT_OK(pub->Publish(&b1));  // batch_seq 1
   ExpectFrame(*client.events, 1, {}, {{k10, k11}});
-  // What the daemon holds but the producer does not: a batch whose batch_seq skips one, as if
-  // the one before it had been lost. It inserts 13 next to 12 and moves 10 away from 11.
+  // What the daemon holds but the producer does not (as if the producer's next batch, which
+  // undid it, had been lost): 13 next to 12, and 10 away from 11.
   wire::UpdateBatch stray = InsertBatch({{13, Cube(5.5f)}});
   client::AddBox<3>(stray.mutable_updates(), 10, Cube(20));
   stray.set_version(wire::SCHEMA_VERSION_1);
   stray.set_producer(2);
-  stray.set_batch_seq(3);
+  stray.set_batch_seq(2);
   BP_ASSERT_OK(pub->PublishRaw(stray.SerializeAsString()));  // not kept by the publisher
   ExpectFrame(*client.events, 2, {{k10, k11}}, {{k12, k13}});
+  // A lost batch: batch_seq 3 reaches the daemon as bytes it cannot read (refused, and not
+  // attributed to producer 2), so batch_seq 4 shows the gap.
+  BP_ASSERT_OK(pub->PublishRaw("not an UpdateBatch"));
+  wire::UpdateBatch b2;
+  b2.set_dim(3);
+  b2.set_end_of_frame(true);
+  client::AddBox<3>(b2.mutable_updates(), 12, Cube(5));
+  BP_ASSERT_OK(pub->Publish(&b2));  // batch_seq 4
+  ExpectFrame(*client.events, 3, {}, {});
   ASSERT_TRUE(client.status->WaitUntil([](const wire::DaemonStatus& r) {
-    return std::count(r.resync_producers().begin(), r.resync_producers().end(), 2u) == 1;
+    return r.resync_size() == 1 && r.resync(0).producer() == 2 && r.resync(0).seen_batch_seq() == 4;
   }));
   for (int i = 0; i < 200 && pub->restates() == 0; ++i) {
     std::this_thread::sleep_for(10ms);
     BP_ASSERT_OK(pub->Maintain());
   }
   ASSERT_EQ(pub->restates(), 1u);
-  // The restate (one batch, closing frame 3) names 10, 11 and 12 with their boxes: 10 is back
+  // The restate (one batch, closing frame 4) names 10, 11 and 12 with their boxes: 10 is back
   // next to 11, and 13, which it does not name, is erased.
-  ExpectFrame(*client.events, 3, {{k12, k13}}, {{k10, k11}});
-  FrameEvents frame3;
-  ASSERT_TRUE(client.events->WaitFrame(3, &frame3));
-  EXPECT_EQ(frame3.last.objects(), 3u);
-  // The sequence goes on from the restate without another request.
-  wire::UpdateBatch b2;
-  b2.set_dim(3);
-  b2.set_end_of_frame(true);
-  b2.add_erases(11);
-  BP_ASSERT_OK(pub->Publish(&b2));
-  ExpectFrame(*client.events, 4, {{k10, k11}}, {});
-  std::this_thread::sleep_for(200ms);
+  FrameEvents frame4;
+  ASSERT_TRUE(client.events->WaitFrame(4, &frame4));
+  EXPECT_EQ(frame4.uncollide, (PairList{{k12, k13}}));
+  EXPECT_EQ(frame4.collide, (PairList{{k10, k11}}));
+  EXPECT_EQ(frame4.last.objects(), 3u);
+  // Answered: the sequence goes on from the restate, and no report asks again.
+  wire::UpdateBatch b3;
+  b3.set_dim(3);
+  b3.set_end_of_frame(true);
+  b3.add_erases(11);
+  b3.add_erases(77);  // unknown: a rejection, so that a report follows
+  BP_ASSERT_OK(pub->Publish(&b3));
+  ExpectFrame(*client.events, 5, {{k10, k11}}, {});
+  wire::DaemonStatus report;
+  ASSERT_TRUE(client.status->WaitUntil([&](const wire::DaemonStatus& r) {
+    report = r;
+    return r.rejections_size() == 1 && r.rejections(0).id() == 77;
+  }));
+  EXPECT_EQ(report.resync_size(), 0);
   BP_ASSERT_OK(pub->Maintain());
   EXPECT_EQ(pub->restates(), 1u);
-  for (const auto& r : client.status->rejections()) ADD_FAILURE() << r.message();
+  ASSERT_EQ(client.status->rejections().size(), 2u);
+  EXPECT_EQ(client.status->rejections()[0].reason(), wire::MALFORMED);
 }
 
-// A restate run with a gap inside names too little: the daemon erases nothing and asks again;
-// a run cut short by an ordinary batch is asked for again too.
-TEST(Daemon, ARestateRunWithAGapErasesNothingAndIsAskedForAgain) {
+// A restate run that did not arrive whole names too little: the daemon erases nothing, keeps
+// asking, and publishes a report at the run's end (so that the producer restates again).
+TEST(Daemon, ARestateThatIsNotWholeErasesNothingAndIsAskedForAgain) {
   service::Config config = TestConfig(kDomain);
+  config.limits.max_batch_items = 100;
   InProcessDaemon daemon(config);
   Client client(config);
   auto pub = client.Publisher(3);  // raw batches with chosen batch_seq values
-  auto send = [&](wire::UpdateBatch batch, uint64_t seq, bool restate) {
+  auto send = [&](wire::UpdateBatch batch, uint64_t seq, uint64_t run) {
     batch.set_version(wire::SCHEMA_VERSION_1);
     batch.set_producer(3);
     batch.set_batch_seq(seq);
-    batch.set_restate(restate);
+    batch.set_restate(run != 0);
+    batch.set_restate_run(run);
     BP_ASSERT_OK(pub->PublishRaw(batch.SerializeAsString()));
   };
-  auto requests = [&]() {
-    size_t n = 0;
-    for (const auto& r : client.status->reports()) {
-      n += static_cast<size_t>(
-          std::count(r.resync_producers().begin(), r.resync_producers().end(), 3u));
-    }
-    return n;
+  auto asked = [&](uint64_t seen) {
+    return client.status->WaitUntil([seen](const wire::DaemonStatus& r) {
+      return r.resync_size() == 1 && r.resync(0).producer() == 3 &&
+             r.resync(0).seen_batch_seq() == seen && r.max_batch_items() == 100;
+    });
   };
-  auto objects_at = [&](uint64_t frame, uint64_t objects) {
+  auto frame = [&](uint64_t number, const PairList& uncollide, uint64_t objects) {
     FrameEvents got;
-    return client.events->WaitFrame(frame, &got) && got.last.objects() == objects;
+    ASSERT_TRUE(client.events->WaitFrame(number, &got)) << "frame " << number;
+    EXPECT_EQ(got.uncollide, uncollide) << "frame " << number;
+    EXPECT_TRUE(got.collide.empty()) << "frame " << number;
+    EXPECT_EQ(got.last.objects(), objects) << "frame " << number;
   };
-  send(InsertBatch({{1, Cube(0)}, {2, Cube(0.5f)}}), 1, false);
-  ExpectFrame(*client.events, 1, {}, {{service::GlobalKey(3, 1), service::GlobalKey(3, 2)}});
-  wire::UpdateBatch first = InsertBatch({{1, Cube(0)}});
-  first.set_end_of_frame(false);
-  send(first, 2, true);
-  send(InsertBatch({}), 4, true);  // batch 3 of the run was lost
-  ExpectFrame(*client.events, 2, {}, {});
-  ASSERT_TRUE(objects_at(2, 2));
-  ASSERT_TRUE(client.status->WaitUntil([&](const wire::DaemonStatus&) { return requests() == 1; }));
-  // While the request is open, another gap asks nothing more.
-  send(InsertBatch({}), 6, false);
-  ExpectFrame(*client.events, 3, {}, {});
-  // A run cut short by an ordinary batch: 2 stays.
-  send(first, 7, true);
-  send(InsertBatch({}), 8, false);
-  ExpectFrame(*client.events, 4, {}, {});
-  ASSERT_TRUE(objects_at(4, 2));
-  ASSERT_TRUE(client.status->WaitUntil([&](const wire::DaemonStatus&) { return requests() == 2; }));
-  // A whole run: 2 is erased.
-  send(first, 9, true);
-  send(InsertBatch({}), 10, true);
-  ExpectFrame(*client.events, 5, {{service::GlobalKey(3, 1), service::GlobalKey(3, 2)}}, {});
-  ASSERT_TRUE(objects_at(5, 1));
-  client.status->Collect(200ms);
-  EXPECT_EQ(requests(), 2u);
+  const PairList pair = {{service::GlobalKey(3, 1), service::GlobalKey(3, 2)}};
+  send(InsertBatch({{1, Cube(0)}, {2, Cube(0.5f)}}), 1, 0);
+  ExpectFrame(*client.events, 1, {}, pair);
+  wire::UpdateBatch one = InsertBatch({{1, Cube(0)}});  // a run's batch naming 1, not the last
+  one.set_end_of_frame(false);
+  const wire::UpdateBatch last = InsertBatch({});
+  // A batch_seq missing in the middle (3).
+  send(one, 2, 2);
+  send(last, 4, 2);
+  frame(2, {}, 2);
+  ASSERT_TRUE(asked(4));
+  // The first batch missing (5).
+  send(last, 6, 5);
+  frame(3, {}, 2);
+  ASSERT_TRUE(asked(6));
+  // A batch refused as a whole (101 items > limits.max_batch_items).
+  send(one, 7, 7);
+  wire::UpdateBatch many = InsertBatch({});
+  many.set_end_of_frame(false);
+  for (uint64_t id = 1; id <= 101; ++id) client::AddBox<3>(many.mutable_inserts(), id, Cube(0));
+  send(many, 8, 7);
+  send(last, 9, 7);
+  frame(4, {}, 2);
+  ASSERT_TRUE(asked(9));
+  // A run cut short by an ordinary batch.
+  send(one, 10, 10);
+  send(last, 11, 0);
+  frame(5, {}, 2);
+  ASSERT_TRUE(asked(11));
+  // A whole run: 2, which it does not name, is erased, and the request is answered.
+  send(one, 12, 12);
+  send(last, 13, 12);
+  frame(6, pair, 1);
+  wire::UpdateBatch bad = InsertBatch({{9, Box<3, float>{{1, 0, 0}, {0, 1, 1}}}});  // inverted
+  send(bad, 14, 0);
+  wire::DaemonStatus report;
+  ASSERT_TRUE(client.status->WaitUntil([&](const wire::DaemonStatus& r) {
+    report = r;
+    return r.rejections_size() == 1 && r.rejections(0).id() == 9;
+  }));
+  EXPECT_EQ(report.resync_size(), 0);
 }
 
 }  // namespace

@@ -16,9 +16,11 @@
 // (UpdateBatch.restate, in batches of `restate_batch_items`, the last closing a frame), then the
 // caller's batch. It restates too when the daemon reports that it erased this producer's objects
 // (DaemonStatus.expired_producers: the process hung longer than producers.lease_s) or that it
-// may have missed some of its batches (DaemonStatus.resync_producers: a batch_seq gap, or DDS
+// may have missed some of its batches (DaemonStatus.resync: a batch_seq gap, or DDS
 // dropped and rediscovered the producer after a stall longer than the participant lease). A
-// restate states the whole set: the daemon erases this producer's objects it does not name.
+// restate states the whole set: the daemon erases this producer's objects it does not name
+// (objects published with PublishRaw too). Restate batches fit within the limits the daemon's
+// reports announce (and restate_batch_items).
 // Updates that reach the new daemon before the producer learned of it are refused (UNKNOWN_ID,
 // in the daemon's status) and the restate that follows carries their boxes: nothing is lost.
 //
@@ -51,7 +53,7 @@ struct PublisherOptions {
   std::chrono::milliseconds liveliness_lease{1000};
   /// Keep the published objects and restate them to a restarted daemon (see above).
   bool restate_on_restart = false;
-  /// Objects per restate batch (keep it within the daemon's limits.max_batch_items).
+  /// Most objects per restate batch (fewer if the daemon's limits require it).
   uint32_t restate_batch_items = 65536;
 };
 
@@ -105,6 +107,7 @@ class UpdatePublisher {
   Status Stamp(wire::UpdateBatch* batch);
   void Keep(const wire::UpdateBatch& batch);
   Status Restate();
+  void ReadLimits();  // from status_msg_
 
   PublisherOptions options_;
   dds::Writer writer_;
@@ -118,6 +121,9 @@ class UpdatePublisher {
   uint64_t frame_ = 0;
   uint64_t epoch_ = 0;
   std::vector<uint64_t> retired_epochs_;
+  uint64_t status_seq_ = 0;    // the newest report read from the current daemon
+  uint64_t last_run_end_ = 0;  // the batch_seq of the last restate's last batch
+  uint64_t daemon_max_items_ = 0, daemon_max_bytes_ = 0;
   bool restate_due_ = false;
   bool published_before_epoch_ = false;
   uint64_t restates_ = 0;
