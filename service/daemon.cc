@@ -120,8 +120,9 @@ Status Daemon::Run() {
 
   auto next_expiry = Clock::time_point::max();
   auto next_snapshot = Clock::time_point::max();
+  auto next_resync = Clock::time_point::max();
   while (!stop_.load()) {
-    auto wake = std::min({next_summary, next_expiry, next_snapshot});
+    auto wake = std::min({next_summary, next_expiry, next_snapshot, next_resync});
     if (tick_mode) wake = std::min(wake, next_tick);
     const auto now = Clock::now();
     int triggered = 0;
@@ -137,6 +138,7 @@ Status Daemon::Run() {
     Drain(drain_rounds, /*until_stop=*/true);
     next_snapshot = ServeRequests();
     next_expiry = CheckProducers();
+    next_resync = CheckResyncs();
     if (tick_mode && Clock::now() >= next_tick) {
       RunFrame(0, 0, 0);
       next_tick += tick;
@@ -294,21 +296,60 @@ void Daemon::FollowRediscoveredWriter(dds_instance_handle_t writer) {
   RequestResync(producers, "its writer was discovered again: batches may have been lost");
 }
 
+namespace {
+constexpr std::chrono::seconds kFirstReask{1};
+constexpr std::chrono::seconds kLastReask{30};
+}  // namespace
+
 void Daemon::RequestResync(const std::vector<uint32_t>& producers, const char* why) {
+  const auto now = Clock::now();
+  bool raised = false;
   for (uint32_t producer : producers) {
-    if (resync_.insert(producer).second) {
-      spdlog::warn("producer {}: {}; asking it to restate its objects", producer, why);
-    }
+    auto [it, fresh] = resync_.try_emplace(producer);
+    if (fresh) spdlog::warn("producer {}: {}; asking it to restate its objects", producer, why);
+    // A new cause raises the request again (the producer may have answered an older one with a
+    // restate that did not arrive whole), but not more than once a second.
+    if (!fresh && now - it->second.last_raise < kFirstReask) continue;
+    it->second = Resync{status_seq_ + 1, now, kFirstReask};
+    raised = true;
   }
-  PublishStatus(wire::SERVING, false);
+  if (raised) PublishStatus(wire::SERVING, false);
+}
+
+std::chrono::steady_clock::time_point Daemon::CheckResyncs() {
+  auto next = Clock::time_point::max();
+  if (resync_.empty()) return next;
+  const auto now = Clock::now();
+  bool raised = false;
+  for (auto& [producer, request] : resync_) {
+    const auto run = runs_.find(producer);
+    if (run != runs_.end() && !run->second.broken) continue;  // a restate is arriving
+    const auto due = request.last_raise + request.backoff;
+    if (now < due) {
+      next = std::min(next, due);
+      continue;
+    }
+    spdlog::info("producer {}: no restate {:.0f} s after the request; asking again", producer,
+                 std::chrono::duration<double>(request.backoff).count());
+    request =
+        Resync{status_seq_ + 1, now, std::min<Clock::duration>(request.backoff * 2, kLastReask)};
+    next = std::min(next, now + request.backoff);
+    raised = true;
+  }
+  if (raised) PublishStatus(wire::SERVING, false);
+  return next;
 }
 
 bool Daemon::TrackSequence(uint32_t producer) {
   uint64_t& last_seq = last_batch_seq_[producer];
   const uint64_t seq = batch_.batch_seq();
-  const bool gap = seq != 0 && last_seq != 0 && seq != last_seq + 1;
-  if (gap) spdlog::warn("producer {}: batch_seq jumped from {} to {}", producer, last_seq, seq);
-  last_seq = seq;
+  // A producer's first batch after batch_seq 1 shows that this daemon missed its earlier
+  // batches (a restart), unless it starts a restate run.
+  const bool gap = seq != 0 && seq != last_seq + 1;
+  if (gap && last_seq != 0) {
+    spdlog::warn("producer {}: batch_seq jumped from {} to {}", producer, last_seq, seq);
+  }
+  if (seq != 0) last_seq = seq;
   const auto run = runs_.find(producer);
   const uint64_t first = batch_.restate() ? batch_.restate_run() : 0;
   if (first == 0) {
@@ -343,8 +384,8 @@ void Daemon::ContinueRestate(uint32_t producer) {
   if (run.broken) {
     runs_.erase(it);
     spdlog::warn("producer {}: its restate missed a batch and erased nothing", producer);
-    resync_.insert(producer);
-    PublishStatus(wire::SERVING, false);  // it has now sent the whole run: it restates again
+    // It has sent the whole run: a new cause, so that it restates again.
+    RequestResync({producer}, "its restate missed a batch");
     return;
   }
   std::sort(run.ids.begin(), run.ids.end());
@@ -622,11 +663,12 @@ void Daemon::PublishStatus(wire::Health health, bool with_interval) {
   status_msg_.set_epoch(epoch_);
   status_msg_.set_producers_expired(producers_expired_.load());
   for (uint32_t p : expired_now_) status_msg_.add_expired_producers(p);
-  for (uint32_t p : resync_) {
+  for (const auto& [p, resync] : resync_) {
     wire::ResyncRequest* request = status_msg_.add_resync();
     request->set_producer(p);
     const auto seen = last_batch_seq_.find(p);
     request->set_seen_batch_seq(seen == last_batch_seq_.end() ? 0 : seen->second);
+    request->set_raised(resync.raised);
   }
   status_msg_.set_max_batch_items(config_.limits.max_batch_items);
   status_msg_.set_max_batch_bytes(config_.limits.max_batch_bytes);

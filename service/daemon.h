@@ -26,8 +26,8 @@
 #include <atomic>
 #include <chrono>
 #include <cstdint>
+#include <map>
 #include <memory>
-#include <set>
 #include <string>
 #include <unordered_map>
 #include <vector>
@@ -82,8 +82,11 @@ class Daemon {
   // to restate (batches around the stall may be lost, and a resting producer shows no gap).
   void FollowRediscoveredWriter(dds_instance_handle_t writer);
   // Asks producers to restate (DaemonStatus.resync, listed in every report until a whole
-  // restate run arrives) and publishes a report.
+  // restate run arrives); a request is raised (and a report published) at most once a second.
   void RequestResync(const std::vector<uint32_t>& producers, const char* why);
+  // Raises again the requests no restate answered in time (1, 2, 4 ... 30 s); returns when the
+  // next is due (time_point::max() if none).
+  std::chrono::steady_clock::time_point CheckResyncs();
   // Keeps track of a producer's batch_seq and restate runs, before its batch is applied.
   // Returns false if batches were lost (a gap, a restate run missing a batch or cut short).
   bool TrackSequence(uint32_t producer);
@@ -162,8 +165,14 @@ class Daemon {
     std::vector<uint64_t> ids;
   };
   std::unordered_map<uint32_t, RestateRun> runs_;
-  // Producers asked to restate, until a whole run arrives (sorted for the reports).
-  std::set<uint32_t> resync_;
+  // Producers asked to restate, until a whole run arrives (sorted for the reports): the report
+  // that raised the request last, and when to raise it again if no restate comes.
+  struct Resync {
+    uint64_t raised = 0;
+    std::chrono::steady_clock::time_point last_raise{};
+    std::chrono::steady_clock::duration backoff{};
+  };
+  std::map<uint32_t, Resync> resync_;
   // Writers of the updates topic that are not alive (lost liveliness or left), since when.
   std::unordered_map<dds_instance_handle_t, std::chrono::steady_clock::time_point> down_since_;
   std::vector<dds::WriterLiveliness::Change> liveliness_changes_;

@@ -179,10 +179,10 @@ Status UpdatePublisher::Maintain() {
           for (uint32_t p : status_msg_.expired_producers()) {
             if (p == producer_) restate_due_ = true;
           }
-          // It may have missed some of our batches: restate, unless it asked before it saw the
-          // end of our last restate (which answers it).
+          // It may have missed some of our batches: restate, unless our last restate began
+          // after we had read the report that raised the request (that restate answers it).
           for (const auto& request : status_msg_.resync()) {
-            if (request.producer() == producer_ && request.seen_batch_seq() >= last_run_end_) {
+            if (request.producer() == producer_ && request.raised() > answered_upto_) {
               restate_due_ = true;
             }
           }
@@ -202,6 +202,7 @@ Status UpdatePublisher::Maintain() {
         if (epoch_ != 0 || published_before_epoch_) restate_due_ = true;
         epoch_ = epoch;
         status_seq_ = r.seq;
+        answered_upto_ = 0;
         ReadLimits();
       },
       &taken);
@@ -233,6 +234,7 @@ Status UpdatePublisher::Restate() {
                                 : uint64_t{1});
   }
   const uint64_t run = seq_ + 1;  // the batch_seq of the run's first batch
+  answered_upto_ = status_seq_;
   auto it = kept_.begin();
   do {  // at least one batch: an empty restate erases what the daemon still holds of ours
     restate_batch_.Clear();
@@ -261,7 +263,6 @@ Status UpdatePublisher::Restate() {
     restate_batch_.set_end_of_frame(it == kept_.end());
     if (Status s = Stamp(&restate_batch_); !s.ok()) return s;  // due again next time
   } while (it != kept_.end());
-  last_run_end_ = seq_;
   restate_due_ = false;
   ++restates_;
   return Status::Ok();

@@ -1112,5 +1112,98 @@ TEST(Daemon, ARestateThatIsNotWholeErasesNothingAndIsAskedForAgain) {
   EXPECT_EQ(report.resync_size(), 0);
 }
 
+// A request no restate answers (the producer does not restate, or its restate was lost before
+// its writer matched the daemon's reader) is raised again after 1 s, then 2 s, ...
+TEST(Daemon, ARequestNoRestateAnswersIsRaisedAgainWithBackoff) {
+  service::Config config = TestConfig(kDomain);
+  InProcessDaemon daemon(config);
+  Client client(config);
+  auto pub = client.Publisher(4);  // does not restate
+  wire::UpdateBatch batch = InsertBatch({{1, Cube(0)}});
+  batch.set_version(wire::SCHEMA_VERSION_1);
+  batch.set_producer(4);
+  batch.set_batch_seq(3);  // a first batch after 1 and 2, which this daemon did not see
+  BP_ASSERT_OK(pub->PublishRaw(batch.SerializeAsString()));
+  ExpectFrame(*client.events, 1, {}, {});
+  std::vector<std::pair<uint64_t, std::chrono::steady_clock::time_point>> raises;
+  ASSERT_TRUE(client.status->WaitUntil(
+      [&](const wire::DaemonStatus& r) {
+        if (r.resync_size() == 1 && r.resync(0).producer() == 4 &&
+            (raises.empty() || r.resync(0).raised() > raises.back().first)) {
+          raises.emplace_back(r.resync(0).raised(), std::chrono::steady_clock::now());
+        }
+        return raises.size() == 3;
+      },
+      10s));
+  const auto first_gap = raises[1].second - raises[0].second;
+  const auto second_gap = raises[2].second - raises[1].second;
+  EXPECT_GE(first_gap, 800ms);
+  EXPECT_GE(second_gap, 1800ms);
+  EXPECT_GT(second_gap, first_gap);
+}
+
+// The publisher side: each raise of a request makes one restate, a report delivered again (its
+// envelope sequence number already read) none, and restate batches fit the daemon's
+// limits.max_batch_items (announced in its reports).
+TEST(Daemon, ARestatingPublisherAnswersEachRaiseOnceWithinTheDaemonsLimits) {
+  service::Config config = TestConfig(kDomain);
+  config.limits.max_batch_items = 2;
+  InProcessDaemon daemon(config);
+  Client client(config);
+  client::PublisherOptions options;
+  options.restate_on_restart = true;
+  std::unique_ptr<client::UpdatePublisher> pub;
+  BP_ASSERT_OK(client::UpdatePublisher::Create(*client.connection, 6, options, &pub));
+  BP_ASSERT_OK(pub->WaitForDaemon(10s));
+  wire::UpdateBatch b1 = InsertBatch({{1, Cube(0)}, {2, Cube(3)}});
+  wire::UpdateBatch b2 = InsertBatch({{3, Cube(6)}, {4, Cube(9)}});
+  wire::UpdateBatch b3 = InsertBatch({{5, Cube(12)}});
+  BP_ASSERT_OK(pub->Publish(&b1));
+  BP_ASSERT_OK(pub->Publish(&b2));
+  BP_ASSERT_OK(pub->Publish(&b3));
+  FrameEvents got;
+  ASSERT_TRUE(client.events->WaitFrame(3, &got));
+  ASSERT_EQ(got.last.objects(), 5u);
+  // Reports as the daemon would publish them (written here, with envelope numbers after the
+  // daemon's own).
+  dds::Qos qos;
+  client::qos::StatusWriter(qos.get(), 1000ms);
+  dds::Writer fake;
+  BP_ASSERT_OK(client.connection->CreateWriter(client::TopicId::kStatus, qos, &fake));
+  auto report = [&](uint64_t seq, uint64_t raised) {
+    wire::DaemonStatus r;
+    r.set_version(wire::SCHEMA_VERSION_1);
+    r.set_health(wire::SERVING);
+    r.set_epoch(pub->daemon_epoch());
+    r.set_max_batch_items(2);
+    wire::ResyncRequest* request = r.add_resync();
+    request->set_producer(6);
+    request->set_raised(raised);
+    BP_ASSERT_OK(fake.Write(seq, r.SerializeAsString()));
+  };
+  auto settle = [&]() {
+    for (int i = 0; i < 30; ++i) {
+      std::this_thread::sleep_for(10ms);
+      BP_ASSERT_OK(pub->Maintain());
+    }
+  };
+  const uint64_t published = pub->published();
+  report(1001, 1001);
+  settle();
+  EXPECT_EQ(pub->restates(), 1u);
+  EXPECT_EQ(pub->published() - published, 3u) << "5 objects in batches of at most 2";
+  report(1002, 1001);  // the same raise: answered
+  report(1001, 1003);  // a report already read
+  settle();
+  EXPECT_EQ(pub->restates(), 1u);
+  report(1003, 1003);  // raised again
+  settle();
+  EXPECT_EQ(pub->restates(), 2u);
+  // Both restates arrived whole: nothing refused, nothing erased.
+  ASSERT_TRUE(client.events->WaitFrame(5, &got));
+  EXPECT_EQ(got.last.objects(), 5u);
+  client.status->Collect(200ms);
+  for (const auto& r : client.status->rejections()) ADD_FAILURE() << r.message();
+}
 }  // namespace
 }  // namespace bp::test

@@ -121,8 +121,8 @@ class UpdatePublisher {
   uint64_t frame_ = 0;
   uint64_t epoch_ = 0;
   std::vector<uint64_t> retired_epochs_;
-  uint64_t status_seq_ = 0;    // the newest report read from the current daemon
-  uint64_t last_run_end_ = 0;  // the batch_seq of the last restate's last batch
+  uint64_t status_seq_ = 0;     // the newest report read from the current daemon
+  uint64_t answered_upto_ = 0;  // status_seq_ when the last restate began
   uint64_t daemon_max_items_ = 0, daemon_max_bytes_ = 0;
   bool restate_due_ = false;
   bool published_before_epoch_ = false;
