@@ -208,7 +208,9 @@ Status UpdatePublisher::Maintain() {
       &taken);
   if (!s.ok()) return s;
   if (retired_epochs_.size() > 64) retired_epochs_.erase(retired_epochs_.begin());
-  if (restate_due_) return Restate();
+  // Not into the void: a restate written before the writer matched the (new) daemon's reader
+  // would be lost. It waits for a match (and the daemon asks again if it still misses it).
+  if (restate_due_ && writer_.MatchedReaders() > 0) return Restate();
   return Status::Ok();
 }
 
