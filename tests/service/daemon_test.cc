@@ -37,6 +37,16 @@ struct Client {
     EXPECT_TRUE(p->WaitForDaemon(10s).ok());
     return p;
   }
+  /// A publisher that keeps its objects and restates them (restate_on_restart).
+  std::unique_ptr<client::UpdatePublisher> RestatingPublisher(uint32_t producer) {
+    client::PublisherOptions options;
+    options.restate_on_restart = true;
+    std::unique_ptr<client::UpdatePublisher> p;
+    Status s = client::UpdatePublisher::Create(*connection, producer, options, &p);
+    EXPECT_TRUE(s.ok()) << s.ToString();
+    EXPECT_TRUE(p->WaitForDaemon(10s).ok());
+    return p;
+  }
 };
 
 SceneParams SmallScene(uint64_t seed, int dim = 3) {
@@ -931,11 +941,7 @@ TEST(Daemon, AProducerTheDaemonExpiredWhileItHungRestates) {
   service::Config config = TestConfig(kDomain);
   InProcessDaemon daemon(config);
   Client client(config);
-  client::PublisherOptions options;
-  options.restate_on_restart = true;
-  std::unique_ptr<client::UpdatePublisher> pub;
-  BP_ASSERT_OK(client::UpdatePublisher::Create(*client.connection, 1, options, &pub));
-  BP_ASSERT_OK(pub->WaitForDaemon(10s));
+  auto pub = client.RestatingPublisher(1);
   wire::UpdateBatch b1 = InsertBatch({{10, Cube(0)}, {11, Cube(0.5f)}});
   BP_ASSERT_OK(pub->Publish(&b1));
   ExpectFrame(*client.events, 1, {}, {{service::GlobalKey(1, 10), service::GlobalKey(1, 11)}});
@@ -977,11 +983,7 @@ TEST(Daemon, ABatchSeqGapIsRepairedByARestateTheDaemonAsksFor) {
   service::Config config = TestConfig(kDomain);
   InProcessDaemon daemon(config);
   Client client(config);
-  client::PublisherOptions options;
-  options.restate_on_restart = true;
-  std::unique_ptr<client::UpdatePublisher> pub;
-  BP_ASSERT_OK(client::UpdatePublisher::Create(*client.connection, 2, options, &pub));
-  BP_ASSERT_OK(pub->WaitForDaemon(10s));
+  auto pub = client.RestatingPublisher(2);
   const uint64_t k10 = service::GlobalKey(2, 10), k11 = service::GlobalKey(2, 11);
   const uint64_t k12 = service::GlobalKey(2, 12), k13 = service::GlobalKey(2, 13);
   wire::UpdateBatch b1 = InsertBatch({{10, Cube(0)}, {11, Cube(0.5f)}, {12, Cube(5)}});
@@ -1150,11 +1152,7 @@ TEST(Daemon, ARestatingPublisherAnswersEachRaiseOnceWithinTheDaemonsLimits) {
   config.limits.max_batch_items = 2;
   InProcessDaemon daemon(config);
   Client client(config);
-  client::PublisherOptions options;
-  options.restate_on_restart = true;
-  std::unique_ptr<client::UpdatePublisher> pub;
-  BP_ASSERT_OK(client::UpdatePublisher::Create(*client.connection, 6, options, &pub));
-  BP_ASSERT_OK(pub->WaitForDaemon(10s));
+  auto pub = client.RestatingPublisher(6);
   wire::UpdateBatch b1 = InsertBatch({{1, Cube(0)}, {2, Cube(3)}});
   wire::UpdateBatch b2 = InsertBatch({{3, Cube(6)}, {4, Cube(9)}});
   wire::UpdateBatch b3 = InsertBatch({{5, Cube(12)}});
