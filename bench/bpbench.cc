@@ -52,8 +52,9 @@ struct Config {
   double cell_size = 0;         // grid engines: 0 = automatic
   double objects_per_cell = 0;  // 0: the cell type's default (bp::kDefaultObjectsPerCell)
   uint32_t max_cells = bp::GridSegmentedSapOptions().max_cells_per_object;
-  unsigned threads = 1;    // grid engines
-  uint32_t big_boxes = 0;  // static boxes of big_width cube widths added to the scene
+  unsigned threads = 1;         // grid engines
+  std::string kernel = "auto";  // grid_dense: "auto" (AVX-512 where the CPU has it) or "portable"
+  uint32_t big_boxes = 0;       // static boxes of big_width cube widths added to the scene
   double big_width = 50;
   bool world_box = false;         // one static box covering the whole scene
   double margin = 0;              // fattened boxes' margin in cube widths (0: exact)
@@ -144,6 +145,12 @@ double ObjectsPerCell(const Config& cfg) {
                                     : bp::kDefaultObjectsPerCell<bp::SegmentedSapOptions>;
 }
 
+bp::DenseCellOptions DenseOptions(const Config& cfg) {
+  bp::DenseCellOptions options;
+  options.wide_kernel = cfg.kernel != "portable";
+  return options;
+}
+
 bp::DynamicOctreeOptions OctreeOptions(const Config& cfg) {
   bp::DynamicOctreeOptions options;
   options.max_objects_per_node = cfg.octree_capacity;
@@ -173,7 +180,7 @@ std::unique_ptr<bp::Broadphase<K, T>> MakeEngine(const Config& cfg, T margin) {
   }
   if (cfg.engine == "grid_dense") {
     return std::make_unique<bp::GridDense<K, T>>(
-        MakeGridOptions<bp::GridDenseOptions>(cfg, bp::DenseCellOptions()), margin);
+        MakeGridOptions<bp::GridDenseOptions>(cfg, DenseOptions(cfg)), margin);
   }
   return std::make_unique<bp::SegmentedSap<K, T>>(SapOptions(cfg), margin);
 }
@@ -341,6 +348,10 @@ void PrintJson(const std::string& scenario, const SceneParams& p, int frames, co
       << ",\"objects_per_cell\":" << ObjectsPerCell(cfg) << ",\"max_cells\":" << cfg.max_cells
       << ",\"threads\":" << cfg.threads << ",\"cells\":" << r.last.cells
       << ",\"large_objects\":" << r.last.large_objects;
+  }
+  if (cfg.engine == "grid_dense") {
+    const bool wide = cfg.kernel != "portable" && bp::detail::CpuHasAvx512();
+    o << ",\"kernel\":\"" << (wide ? "avx512" : "portable") << "\"";
   }
   if (cfg.engine == "segmented_sap" || cfg.engine == "grid_segmented_sap") {
     o << ",\"chunk\":" << cfg.chunk << ",\"presorted_min\":" << cfg.presorted_min;
@@ -705,6 +716,11 @@ int main(int argc, char** argv) {
   app.add_option("--max-cells", cfg.max_cells,
                  "grid engines: cells an object may cover before it is kept as a large object")
       ->check(CLI::Range(1u, 1000000u))
+      ->capture_default_str();
+  app.add_option("--kernel", cfg.kernel,
+                 "grid_dense: the cells' box-test kernel, auto (AVX-512 where the CPU has it, for "
+                 "float, double and int32) or portable")
+      ->check(CLI::IsMember({"auto", "portable"}))
       ->capture_default_str();
   app.add_option("--coord", cfg.coord, "coordinate type")
       ->check(CLI::IsMember({"float", "double", "int32"}))

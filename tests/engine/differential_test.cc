@@ -327,6 +327,10 @@ template <class C>
 class GridDenseDiff : public DifferentialTest<C> {};
 template <class C>
 class GridDenseTinyCells : public DifferentialTest<C> {};
+template <class C>
+class GridDensePortableDiff : public DifferentialTest<C> {};
+template <class C>
+class GridDensePortableTinyCells : public DifferentialTest<C> {};
 
 using BruteForceShapes = AllShapes<MakeBruteForce>;
 using SapShapes = AllShapes<MakeSegmentedSap<32, 7>>;  // the default options
@@ -371,8 +375,12 @@ TYPED_TEST_SUITE(GridBatchDiff, GridBatchShapes);
 TYPED_TEST_SUITE(GridBatchTinyCells, GridBatchTinyShapes);
 using GridDenseShapes = AllShapes<MakeGrid<CellKind::kDense, 0>>;
 using GridDenseTinyShapes = AllShapes<MakeGrid<CellKind::kDense, 30, 8>>;
+using GridDensePortableShapes = AllShapes<MakeGrid<CellKind::kDensePortable, 0>>;
+using GridDensePortableTinyShapes = AllShapes<MakeGrid<CellKind::kDensePortable, 30, 8>>;
 TYPED_TEST_SUITE(GridDenseDiff, GridDenseShapes);
 TYPED_TEST_SUITE(GridDenseTinyCells, GridDenseTinyShapes);
+TYPED_TEST_SUITE(GridDensePortableDiff, GridDensePortableShapes);
+TYPED_TEST_SUITE(GridDensePortableTinyCells, GridDensePortableTinyShapes);
 
 #define BP_DIFFERENTIAL_TESTS(Suite)                                                 \
   TYPED_TEST(Suite, RandomOperationsMatchOracle) {                                   \
@@ -399,6 +407,8 @@ BP_DIFFERENTIAL_TESTS(GridBatchDiff)
 BP_DIFFERENTIAL_TESTS(GridBatchTinyCells)
 BP_DIFFERENTIAL_TESTS(GridDenseDiff)
 BP_DIFFERENTIAL_TESTS(GridDenseTinyCells)
+BP_DIFFERENTIAL_TESTS(GridDensePortableDiff)
+BP_DIFFERENTIAL_TESTS(GridDensePortableTinyCells)
 BP_DIFFERENTIAL_TESTS(DynamicOctreeDiff)
 BP_DIFFERENTIAL_TESTS(DynamicOctreeTinyNodes)
 

@@ -57,6 +57,7 @@ std::vector<NamedEngine<K, T>> AllEngines() {
   // Cells of 0.3: huge coordinates clamp to the edge cells (indices that would overflow).
   add(MakeGrid<CellKind::kSegmented, 3, 64>{});
   add(MakeGrid<CellKind::kDense, 3, 8>{});
+  add(MakeGrid<CellKind::kDensePortable, 3, 8>{});
   // Cells of 1 and 3: lattice coordinates lie exactly on cell boundaries.
   add(MakeGrid<CellKind::kBatch, 10, 8>{});
   add(MakeGrid<CellKind::kDense, 30, 16>{});

@@ -5,10 +5,12 @@
 // against the brute-force engine, event by event.
 #include "bp/grid.h"
 
+#include <algorithm>
 #include <cstdint>
 #include <limits>
 #include <random>
 #include <string>
+#include <tuple>
 #include <vector>
 
 #include "test_support.h"
@@ -358,6 +360,75 @@ TEST(Grid, ThreadCountDoesNotChangeEvents) {
   for (unsigned threads : {2u, 4u}) {
     EXPECT_TRUE(SceneEvents<Dense>(threads, 3000, 3000, 100, 20) == dense);
     EXPECT_TRUE(SceneEvents<Dense>(threads, 3000, 600, 40, 30) == one);
+  }
+}
+
+// The dense cell's AVX-512 kernel against its portable one, directly on cells: random boxes on a
+// small lattice (many exact touches and equal coordinates), random erases, updates and inserts,
+// few and many changes per query (both paths of FindChanges), every change list compared.
+template <class T>
+void ExpectKernelsAgree(uint64_t seed) {
+  using Core = detail::DenseCellCore<3, T>;
+  using HB = detail::HandleBox<3, T>;
+  DenseCellOptions portable;
+  portable.wide_kernel = false;
+  Core wide, slow(portable);
+  std::mt19937_64 rng(seed);
+  auto coord = [&] { return static_cast<T>(static_cast<int>(rng() % 12)); };
+  auto box = [&] {
+    Box<3, T> b;
+    for (size_t a = 0; a < 3; ++a) {
+      b.lo[a] = coord();
+      b.hi[a] = static_cast<T>(b.lo[a] + static_cast<T>(rng() % 4));
+    }
+    return b;
+  };
+  std::vector<bool> live(70, false);
+  size_t changes = 0;
+  for (int query = 0; query < 300; ++query) {
+    std::vector<uint32_t> erases;
+    std::vector<HB> updates, inserts;
+    const uint64_t ops = query % 3 == 0 ? 40 : 1 + rng() % 8;
+    std::vector<bool> used(live.size(), false);
+    for (uint64_t i = 0; i < ops; ++i) {
+      const auto h = static_cast<uint32_t>(rng() % live.size());
+      if (used[h]) continue;
+      used[h] = true;
+      if (!live[h]) {
+        inserts.push_back({h, box()});
+      } else if (rng() % 4 == 0) {
+        erases.push_back(h);
+      } else {
+        updates.push_back({h, box()});
+      }
+    }
+    for (uint32_t h : erases) live[h] = false;
+    for (const HB& hb : inserts) live[hb.handle] = true;
+    std::vector<std::tuple<uint32_t, uint32_t, bool>> a, b;
+    wide.Apply(erases, updates, inserts);
+    slow.Apply(erases, updates, inserts);
+    wide.DrainChanges([&](uint32_t x, uint32_t y, bool now) {
+      a.emplace_back(std::min(x, y), std::max(x, y), now);
+    });
+    slow.DrainChanges([&](uint32_t x, uint32_t y, bool now) {
+      b.emplace_back(std::min(x, y), std::max(x, y), now);
+    });
+    std::sort(a.begin(), a.end());
+    std::sort(b.begin(), b.end());
+    ASSERT_EQ(a, b) << "query " << query;
+    changes += a.size();
+    ASSERT_TRUE(wide.Validate().ok());
+  }
+  EXPECT_GT(changes, 1000u);  // the scene is not idle
+}
+
+TEST(DenseCell, WideAndPortableKernelsReportTheSameChanges) {
+  if (!detail::CpuHasAvx512())
+    GTEST_SKIP() << "this CPU has no AVX-512: only the portable kernel runs";
+  for (uint64_t seed : {uint64_t{1}, uint64_t{2}, uint64_t{3}}) {
+    ExpectKernelsAgree<float>(seed);
+    ExpectKernelsAgree<double>(seed);
+    ExpectKernelsAgree<int32_t>(seed);
   }
 }
 

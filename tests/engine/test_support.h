@@ -148,7 +148,9 @@ struct MakeBatchSap {
 };
 
 /// The cell type of a test grid.
-enum class CellKind { kSegmented, kBatch, kDense };
+/// The cell type of a test grid (kDensePortable: dense cells forced onto the portable kernel, so
+/// that a CPU with AVX-512 checks both kernels).
+enum class CellKind { kSegmented, kBatch, kDense, kDensePortable };
 
 /// A grid over SegmentedSap, BatchSap or dense cells with cell size kCellTenths / 10 (0:
 /// automatic) and at most kMaxCells cells per object before it counts as large.
@@ -164,9 +166,10 @@ struct MakeGrid {
       GridBatchSapOptions options;
       set(options);
       return std::make_unique<GridBatchSap<K, T>>(options);
-    } else if constexpr (kCell == CellKind::kDense) {
+    } else if constexpr (kCell == CellKind::kDense || kCell == CellKind::kDensePortable) {
       GridDenseOptions options;
       set(options);
+      options.cell.wide_kernel = kCell == CellKind::kDense;
       return std::make_unique<GridDense<K, T>>(options);
     } else {
       GridSegmentedSapOptions options;
@@ -175,9 +178,10 @@ struct MakeGrid {
     }
   }
   static std::string Name() {
-    const char* kind = kCell == CellKind::kBatch   ? "GridBatchSap"
-                       : kCell == CellKind::kDense ? "GridDense"
-                                                   : "GridSegmentedSap";
+    const char* kind = kCell == CellKind::kBatch           ? "GridBatchSap"
+                       : kCell == CellKind::kDense         ? "GridDense"
+                       : kCell == CellKind::kDensePortable ? "GridDensePortable"
+                                                           : "GridSegmentedSap";
     return std::string(kind) + "_s" + std::to_string(kCellTenths) + "_m" +
            std::to_string(kMaxCells);
   }

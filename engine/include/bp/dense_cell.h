@@ -27,10 +27,15 @@
 #pragma once
 
 #include <algorithm>
+#include <bit>
 #include <cstdint>
 #include <span>
 #include <string>
 #include <vector>
+
+#if defined(__x86_64__)
+#include <immintrin.h>
+#endif
 
 #include "bp/box.h"
 #include "bp/broadphase.h"
@@ -41,8 +46,83 @@
 
 namespace bp {
 
-/// Tuning of the dense cell (none: its cost is set by the grid's objects_per_cell).
-struct DenseCellOptions {};
+/// Tuning of the dense cell (its cost is set mostly by the grid's objects_per_cell).
+struct DenseCellOptions {
+  /// Test boxes with the AVX-512 kernel when the CPU has it (float, double and int32
+  /// coordinates on x86-64); false, or another CPU or type, takes the portable kernel. Both
+  /// give the same events (the differential suite runs each).
+  bool wide_kernel = true;
+};
+
+namespace detail {
+
+#if defined(__x86_64__) && (defined(__GNUC__) || defined(__clang__))
+#define BP_DENSE_WIDE 1
+#define BP_WIDE_TARGET __attribute__((target("avx512f")))
+
+/// True iff this CPU (and its OS) runs AVX-512F code: the dense cell's wide kernel.
+inline bool CpuHasAvx512() {
+  static const bool has = [] {
+    __builtin_cpu_init();
+    return __builtin_cpu_supports("avx512f") != 0;
+  }();
+  return has;
+}
+
+/// One row pair of a block of 16 slots under AVX-512: bit i of the result is bit i of `in` and
+/// [rlo[i] <= hi && lo <= rhi[i]] (closed overlap on one axis, the scalar <= exactly).
+template <class T>
+struct WideRows {};  // no wide kernel for T
+template <>
+struct WideRows<float> {
+  BP_WIDE_TARGET static uint32_t Overlap(uint32_t in, const float* rlo, const float* rhi, float lo,
+                                         float hi) {
+    __mmask16 m = _mm512_mask_cmp_ps_mask(static_cast<__mmask16>(in), _mm512_loadu_ps(rlo),
+                                          _mm512_set1_ps(hi), _CMP_LE_OQ);
+    return _mm512_mask_cmp_ps_mask(m, _mm512_set1_ps(lo), _mm512_loadu_ps(rhi), _CMP_LE_OQ);
+  }
+};
+template <>
+struct WideRows<double> {
+  BP_WIDE_TARGET static uint32_t Overlap(uint32_t in, const double* rlo, const double* rhi,
+                                         double lo, double hi) {
+    const __m512d vlo = _mm512_set1_pd(lo), vhi = _mm512_set1_pd(hi);
+    uint32_t out = 0;
+    for (int half = 0; half < 2; ++half) {
+      auto m = static_cast<__mmask8>(in >> (8 * half));
+      m = _mm512_mask_cmp_pd_mask(m, _mm512_loadu_pd(rlo + 8 * half), vhi, _CMP_LE_OQ);
+      m = _mm512_mask_cmp_pd_mask(m, vlo, _mm512_loadu_pd(rhi + 8 * half), _CMP_LE_OQ);
+      out |= uint32_t{m} << (8 * half);
+    }
+    return out;
+  }
+};
+template <>
+struct WideRows<int32_t> {
+  BP_WIDE_TARGET static uint32_t Overlap(uint32_t in, const int32_t* rlo, const int32_t* rhi,
+                                         int32_t lo, int32_t hi) {
+    __mmask16 m = _mm512_mask_cmp_epi32_mask(static_cast<__mmask16>(in), _mm512_loadu_si512(rlo),
+                                             _mm512_set1_epi32(hi), _MM_CMPINT_LE);
+    return _mm512_mask_cmp_epi32_mask(m, _mm512_set1_epi32(lo), _mm512_loadu_si512(rhi),
+                                      _MM_CMPINT_LE);
+  }
+};
+/// The live flags (0/1) of a block of 16 slots as bits.
+BP_WIDE_TARGET inline uint32_t WideLive(const uint32_t* flags) {
+  const __m512i v = _mm512_loadu_si512(flags);
+  return _mm512_test_epi32_mask(v, v);
+}
+template <class T>
+inline constexpr bool kHasWideRows = requires {
+  WideRows<T>::Overlap;
+};
+#else
+inline bool CpuHasAvx512() { return false; }
+template <class T>
+inline constexpr bool kHasWideRows = false;
+#endif
+
+}  // namespace detail
 
 namespace detail {
 
@@ -55,7 +135,8 @@ class DenseCellCore {
   static constexpr const char* kGridName = "grid_dense";
   using Options = DenseCellOptions;
 
-  explicit DenseCellCore(const Options& options = Options()) : options_(options) {}
+  explicit DenseCellCore(const Options& options = Options())
+      : options_(options), wide_(kHasWideRows<T> && options.wide_kernel && CpuHasAvx512()) {}
 
   void Apply(std::span<const uint32_t> erases, std::span<const HandleBox<K, T>> updates,
              std::span<const HandleBox<K, T>> inserts) {
@@ -248,6 +329,14 @@ class DenseCellCore {
   template <class Report>
   void ScanBlocks(const T* then_rows, const uint32_t* then_live, uint32_t c, const Before& old,
                   const uint32_t* steady, Report&& report) {
+#ifdef BP_DENSE_WIDE
+    if constexpr (kHasWideRows<T>) {
+      if (wide_) {
+        ScanBlocksWide(then_rows, then_live, c, old, steady, report);
+        return;
+      }
+    }
+#endif
     const uint32_t wc = old.live, ic = is_[c];
     T plo[kAxes], phi[kAxes], nlo[kAxes], nhi[kAxes];
     for (size_t a = 0; a < kAxes; ++a) {
@@ -290,7 +379,45 @@ class DenseCellCore {
     }
   }
 
+#ifdef BP_DENSE_WIDE
+  // ScanBlocks with AVX-512: one register per row of a block (two for double), the then and now
+  // tests as bit masks, and only the differing bits visited.
+  template <class Report>
+  BP_WIDE_TARGET void ScanBlocksWide(const T* then_rows, const uint32_t* then_live, uint32_t c,
+                                     const Before& old, const uint32_t* steady, Report& report) {
+    T nlo[kAxes], nhi[kAxes];
+    for (size_t a = 0; a < kAxes; ++a) {
+      nlo[a] = rows_[At(c, 2 * a)];
+      nhi[a] = rows_[At(c, 2 * a + 1)];
+    }
+    const uint32_t c_block = c / kBlock, blocks = size_ / kBlock;
+    const bool was_live = old.live != 0, is_live = is_[c] != 0;
+    for (uint32_t b = 0; b < blocks; ++b) {
+      if (steady != nullptr && b < c_block && steady[b] == 0) continue;
+      tests_ += 2 * kBlock;
+      const T* then_block = then_rows + size_t{b} * kBlockValues;
+      const T* now_block = rows_.data() + size_t{b} * kBlockValues;
+      uint32_t then_bits = was_live ? WideLive(then_live + size_t{b} * kBlock) : 0;
+      uint32_t now_bits = is_live ? WideLive(is_.data() + size_t{b} * kBlock) : 0;
+      for (size_t a = 0; a < kAxes; ++a) {
+        const size_t lo = 2 * a * kBlock, hi = lo + kBlock;
+        then_bits = WideRows<T>::Overlap(then_bits, then_block + lo, then_block + hi, old.box.lo[a],
+                                         old.box.hi[a]);
+        now_bits = WideRows<T>::Overlap(now_bits, now_block + lo, now_block + hi, nlo[a], nhi[a]);
+      }
+      uint32_t diff = then_bits ^ now_bits;
+      if (b == c_block) diff &= ~(1u << (c % kBlock));
+      while (diff != 0) {
+        const auto i = static_cast<uint32_t>(std::countr_zero(diff));
+        diff &= diff - 1;
+        report(b * kBlock + i, ((now_bits >> i) & 1u) != 0);
+      }
+    }
+  }
+#endif
+
   Options options_;
+  bool wide_;                 // ScanBlocks takes the AVX-512 kernel
   std::vector<T> rows_;       // per block: lo[0], hi[0], lo[1], ... (kBlock values each)
   std::vector<uint32_t> is_;  // live now (0 or 1)
   uint32_t size_ = 0;         // slots (the grid's local handles), a multiple of kBlock
