@@ -133,9 +133,10 @@ class GridCore {
     for (uint32_t h : erases) EraseObject(h);
     // Updates come in handle order, not memory order: the loads of each object's records miss
     // the cache, so they are prefetched a few updates ahead, in the order they depend on each
-    // other (object and box, then its first cell reference, then that cell, then the end of
-    // that cell's update buffer, where the update will be written).
+    // other (object and box, then its cell references). An update that stays in its cells
+    // touches no cell here: it is appended to routed_ (see RouteUpdate).
     const size_t n = updates.size();
+    routed_.reserve(n);
     for (size_t i = 0; i < n; ++i) {
       if (i + 16 < n) {
         const uint32_t h = updates[i + 16].handle;
@@ -144,17 +145,6 @@ class GridCore {
       if (i + 8 < n) {
         const Object& o = objects_[updates[i + 8].handle];
         if (o.nrefs != 0) Prefetch(&refs_[o.refs]);
-      }
-      if (i + 4 < n) {
-        const Object& o = objects_[updates[i + 4].handle];
-        if (o.nrefs != 0) Prefetch(cells_[refs_[o.refs].cell].get());
-      }
-      if (i + 2 < n) {
-        const Object& o = objects_[updates[i + 2].handle];
-        if (o.nrefs != 0) {
-          const auto& buffer = cells_[refs_[o.refs].cell]->updates;
-          Prefetch(buffer.data() + buffer.size());
-        }
       }
       UpdateObject(updates[i].handle, updates[i].box);
     }
@@ -226,11 +216,10 @@ class GridCore {
     uint64_t key = 0;
     std::vector<uint32_t> global;      // local handle -> global handle (kNone: free)
     std::vector<uint32_t> free_local;  // reusable local handles
-    std::vector<uint32_t> erases;      // buffered operations, by local handle
-    std::vector<HandleBox<kDim, Coord>> updates, inserts;
+    std::vector<uint32_t> erases;      // buffered operations, by local handle (updates: routed_)
+    std::vector<HandleBox<kDim, Coord>> inserts;
     std::vector<uint32_t> large;  // large objects whose range covers this cell
     uint32_t members = 0;         // live objects once the buffered operations are applied
-    bool touched = false;
     bool in_use = false;
   };
   struct Large {
@@ -434,7 +423,16 @@ class GridCore {
     const BoxType before = objects_[h].box;
     objects_[h].box = box;
     CellCoord lo, hi;
-    RangeOf(box, &lo, &hi);
+    // The new range, compared with the old one axis by axis in registers (comparing the arrays
+    // would read back the just-stored coordinates whole: a failed store-to-load forward).
+    bool same_range = true;
+    for (size_t a = 0; a < kAxes; ++a) {
+      const auto l = static_cast<typename Space::Scalar>(CellOf(box.lo[a], a));
+      const auto u = static_cast<typename Space::Scalar>(CellOf(box.hi[a], a));
+      same_range = same_range && l == o.lo[a] && u == o.hi[a];
+      lo[a] = l;
+      hi[a] = u;
+    }
     bool large_now = CellCount(lo, hi) > options_.max_cells_per_object;
     if (o.large != kNone) {
       if (large_now) {
@@ -465,13 +463,8 @@ class GridCore {
       BeginLargeCandidates();
       AddLargeCandidates(h);
     }
-    if (lo == o.lo && hi == o.hi) {
-      for (uint32_t i = 0; i < o.nrefs; ++i) {
-        CellRef ref = refs_[o.refs + i];
-        GridCell& c = *cells_[ref.cell];
-        c.updates.push_back({ref.local, box});
-        Touch(ref.cell);
-      }
+    if (same_range) {
+      for (uint32_t i = 0; i < o.nrefs; ++i) RouteUpdate(refs_[o.refs + i], box);
     } else {
       Migrate(h, lo, hi);
       if (with_large) AddLargeCandidates(h);
@@ -491,15 +484,15 @@ class GridCore {
       CellRef ref;
       if (Space::Contains(o.lo, o.hi, c)) {
         ref = refs_[o.refs + Space::RowMajor(o.lo, o.hi, c)];
-        cells_[ref.cell]->updates.push_back({ref.local, box});
+        RouteUpdate(ref, box);
       } else {
         ref.cell = CellAt(c);
         GridCell& cell = *cells_[ref.cell];
         ref.local = AllocLocal(cell, h);
-        cell.inserts.push_back({ref.local, box});
+        PushBox(cell.inserts, ref.local, box);
         ++cell.members;
+        Touch(ref.cell);
       }
-      Touch(ref.cell);
       refs_[refs + i++] = ref;
     });
     uint32_t j = 0;
@@ -526,7 +519,7 @@ class GridCore {
       uint32_t idx = CellAt(c);
       GridCell& cell = *cells_[idx];
       uint32_t local = AllocLocal(cell, h);
-      cell.inserts.push_back({local, objects_[h].box});
+      PushBox(cell.inserts, local, objects_[h].box);
       ++cell.members;
       Touch(idx);
       refs_[refs + i++] = CellRef{idx, local};
@@ -567,6 +560,7 @@ class GridCore {
     } else {
       idx = static_cast<uint32_t>(cells_.size());
       cells_.push_back(std::make_unique<GridCell>(options_.cell));
+      cell_work_.emplace_back();
     }
     slot = idx;  // FindOrInsert's reference is still valid: nothing was inserted since
     GridCell& cell = *cells_[idx];
@@ -596,11 +590,38 @@ class GridCore {
   }
 
   void Touch(uint32_t idx) {
-    GridCell& cell = *cells_[idx];
-    if (!cell.touched) {
-      cell.touched = true;
+    CellWork& work = cell_work_[idx];
+    if (!work.touched) {
+      work.touched = true;
       touched_.push_back(idx);
     }
+  }
+
+  // Buffers the update of a cell's slot: appended to routed_ (sequential writes, where a
+  // per-cell buffer cost two cache misses, its header and its end) and counted per cell;
+  // QueryCells groups routed_ by cell.
+  void RouteUpdate(CellRef ref, const BoxType& box) {
+    Routed& r = routed_.emplace_back();
+    r.cell = ref.cell;
+    r.update.handle = ref.local;
+    r.update.box = box;
+    ++cell_work_[ref.cell].updates;
+    Touch(ref.cell);
+  }
+
+  // routed_ grouped by cell into grouped_, in the order of touched_: each touched cell's
+  // updates become one contiguous run (begin: its offset), in routing order within it.
+  void GroupUpdates() {
+    uint32_t offset = 0;
+    for (uint32_t idx : touched_) {
+      CellWork& work = cell_work_[idx];
+      work.begin = offset;
+      work.end = offset;
+      offset += work.updates;
+    }
+    grouped_.resize(offset);
+    for (const Routed& r : routed_) grouped_[cell_work_[r.cell].end++] = r.update;
+    routed_.clear();
   }
 
   // Applies every touched cell's buffered operations (in parallel: cells share nothing), then
@@ -613,9 +634,10 @@ class GridCore {
       // Most cells are touched: list them in cell order by one walk of the cell array.
       touched_.clear();
       for (uint32_t idx = 0; idx < cells_.size(); ++idx) {
-        if (cells_[idx]->touched) touched_.push_back(idx);
+        if (cell_work_[idx].touched) touched_.push_back(idx);
       }
     }
+    GroupUpdates();
     if (pool_ != nullptr) {
       pool_->ParallelFor(touched_.size(), [this](size_t i) { ApplyCell(touched_[i]); });
     } else {
@@ -632,13 +654,14 @@ class GridCore {
   // Starts loading what applying the cell reads first: its buffered updates and, for a cell
   // type that says where its hot arrays are, those.
   void PrefetchCell(const GridCell& cell) {
-    if (!cell.updates.empty()) Prefetch(cell.updates.data());
     if constexpr (requires { cell.core.Prefetch(); }) cell.core.Prefetch();
   }
 
   void ApplyCell(uint32_t idx) {
     GridCell& cell = *cells_[idx];
-    cell.core.Apply(cell.erases, cell.updates, cell.inserts);
+    const CellWork& work = cell_work_[idx];
+    cell.core.Apply(cell.erases, std::span(grouped_.data() + work.begin, work.updates),
+                    cell.inserts);
   }
 
   void FinishCell(uint32_t idx) {
@@ -655,9 +678,8 @@ class GridCore {
       cell.free_local.push_back(local);
     }
     cell.erases.clear();
-    cell.updates.clear();
     cell.inserts.clear();
-    cell.touched = false;
+    cell_work_[idx] = CellWork{};
     if (cell.members == 0) {
       BP_ASSERT(cell.core.live() == 0);
       cell_of_.Erase(cell.key);
@@ -858,6 +880,7 @@ class GridCore {
   void Regrid(const Sizing& sizing) {
     rebuilt_ = true;
     cells_.clear();
+    cell_work_.clear();
     free_cells_.clear();
     cell_of_.Clear();
     large_.clear();
@@ -929,6 +952,21 @@ class GridCore {
   std::vector<uint32_t> free_cells_;
   FlatMap<uint64_t, uint32_t> cell_of_;  // packed coordinate -> cell index
   std::vector<uint32_t> touched_;
+  // This query's updates of cell slots, as routed, then grouped by cell (GroupUpdates).
+  struct Routed {
+    uint32_t cell;
+    HandleBox<kDim, Coord> update;  // the cell's local handle and the new box
+  };
+  std::vector<Routed> routed_;
+  std::vector<HandleBox<kDim, Coord>> grouped_;
+  // Per cell index, this query's work: touched (in touched_), updates routed to it, and its
+  // run [begin, end) in grouped_. Kept apart from the cells so that routing reads 12 bytes.
+  struct CellWork {
+    uint32_t updates = 0;
+    uint32_t begin = 0, end = 0;
+    bool touched = false;
+  };
+  std::vector<CellWork> cell_work_;
   std::vector<Large> large_;
   std::vector<uint32_t> free_large_;
   std::vector<uint32_t> changed_large_;

@@ -51,7 +51,10 @@ Status GridCore<Cell>::Validate() const {
   }
   if (live.size() != live_) return fail("live count differs");
   if (large_live != large_count_) return fail("large count differs");
-  if (!touched_.empty() || !changed_large_.empty()) return fail("work left after a query");
+  if (!touched_.empty() || !changed_large_.empty() || !routed_.empty()) {
+    return fail("work left after a query");
+  }
+  if (cell_work_.size() != cells_.size()) return fail("per-cell work table of the wrong size");
 
   FlatMap<uint64_t, uint32_t> count;
   size_t in_use = 0;
@@ -67,7 +70,8 @@ Status GridCore<Cell>::Validate() const {
     if (members != c.members || members != c.core.live() || members == 0) {
       return fail("cell members differ");
     }
-    if (c.touched || !c.erases.empty() || !c.updates.empty() || !c.inserts.empty()) {
+    if (cell_work_[idx].touched || cell_work_[idx].updates != 0 || !c.erases.empty() ||
+        !c.inserts.empty()) {
       return fail("cell left with buffered operations");
     }
     for (uint32_t l = 0; l < large_.size(); ++l) {

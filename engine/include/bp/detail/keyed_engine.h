@@ -63,6 +63,15 @@ struct HandleBox {
   Box<K, T> box;
 };
 
+/// Appends {h, box} to v, written in place: a braced temporary is stored piecewise and read back
+/// whole, a failed store-to-load forward that took most of the grid's routing time (perf, S3).
+template <int K, Coordinate T>
+inline void PushBox(std::vector<HandleBox<K, T>>& v, uint32_t h, const Box<K, T>& box) {
+  HandleBox<K, T>& out = v.emplace_back();
+  out.handle = h;
+  out.box = box;
+}
+
 template <class Core, class Key>
 class KeyedEngine final : public Broadphase<Core::kDim, typename Core::Coord, Key> {
   static constexpr int K = Core::kDim;
@@ -174,10 +183,10 @@ class KeyedEngine final : public Broadphase<Core::kDim, typename Core::Coord, Ke
           erases_.push_back(h);
           break;
         case Pending::kUpdate:
-          updates_.push_back({h, slot.box});
+          PushBox(updates_, h, slot.box);
           break;
         case Pending::kInsert:
-          inserts_.push_back({h, slot.box});
+          PushBox(inserts_, h, slot.box);
           break;
         case Pending::kNone:
           break;
