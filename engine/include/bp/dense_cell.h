@@ -141,8 +141,9 @@ class DenseCellCore {
   void Apply(std::span<const uint32_t> erases, std::span<const HandleBox<K, T>> updates,
              std::span<const HandleBox<K, T>> inserts) {
     tests_ = 0;
-    changed_.clear();
-    before_.clear();
+    scratch_ = &ThreadScratch();
+    scratch_->order.clear();
+    scratch_->before.clear();
     for (uint32_t h : erases) {
       BP_ASSERT(h < size_ && is_[h] != 0);
       Mark(h, true);
@@ -161,7 +162,8 @@ class DenseCellCore {
       Store(h, box);
     }
     live_ = live_ + inserts.size() - erases.size();
-    if (!changed_.empty()) FindChanges();
+    if (!scratch_->order.empty()) FindChanges();
+    scratch_ = nullptr;
     if (live_ == 0) Resize(0);  // an emptied cell is recycled by the grid with fresh handles
   }
 
@@ -229,9 +231,13 @@ class DenseCellCore {
   // Per-thread scratch of one Apply: the rows as they were ("then"), which slots changed, and
   // per block the slots that did not change and are live (a block without any holds only pairs
   // that its changed slots decide).
+  // The changed slots' order and old states are per thread too (not per cell): the lists are
+  // needed only inside Apply, and a per-cell list is one more line to miss per touched cell.
   struct Scratch {
     std::vector<T> then_rows;
     std::vector<uint32_t> then_live, changed, steady;
+    std::vector<uint32_t> order;  // the query's changed slots, in order
+    std::vector<Before> before;   // their states at the last query
   };
   static Scratch& ThreadScratch() {
     thread_local Scratch scratch;
@@ -265,8 +271,8 @@ class DenseCellCore {
     if (h >= size_) Resize((size_t{h} + kBlock) / kBlock * kBlock);
   }
   void Mark(uint32_t h, bool live) {
-    changed_.push_back(h);
-    before_.push_back(Before{live ? BoxAt(h) : Box<K, T>{}, live ? 1u : 0u});
+    scratch_->order.push_back(h);
+    scratch_->before.push_back(Before{live ? BoxAt(h) : Box<K, T>{}, live ? 1u : 0u});
   }
 
   // The pairs whose status differs between the last query and now, each reported once. With
@@ -274,18 +280,20 @@ class DenseCellCore {
   // they are for every unchanged slot, and the pairs among the changed slots are decided one by
   // one; with more, the scratch holds the rows as they were and one pass settles every pair.
   void FindChanges() {
-    if (changed_.size() <= kFewChanges) {
-      for (uint32_t r = 0; r < changed_.size(); ++r) {
-        const uint32_t c = changed_[r];
-        ScanBlocks(rows_.data(), is_.data(), c, before_[r], nullptr, [&](uint32_t j, bool now) {
-          if (std::find(changed_.begin(), changed_.end(), j) != changed_.end()) return;
+    const std::vector<uint32_t>& order = scratch_->order;
+    const std::vector<Before>& before = scratch_->before;
+    if (order.size() <= kFewChanges) {
+      for (uint32_t r = 0; r < order.size(); ++r) {
+        const uint32_t c = order[r];
+        ScanBlocks(rows_.data(), is_.data(), c, before[r], nullptr, [&](uint32_t j, bool now) {
+          if (std::find(order.begin(), order.end(), j) != order.end()) return;
           if (Accepts(c, j)) changes_.push_back(Change{c, j, now});
         });
-        for (uint32_t q = r + 1; q < changed_.size(); ++q) {
-          const uint32_t j = changed_[q];
+        for (uint32_t q = r + 1; q < order.size(); ++q) {
+          const uint32_t j = order[q];
           BP_ASSERT(j != c);  // one operation per slot and query
-          const bool then = before_[r].live != 0 && before_[q].live != 0 &&
-                            Overlaps(before_[r].box, before_[q].box);
+          const bool then =
+              before[r].live != 0 && before[q].live != 0 && Overlaps(before[r].box, before[q].box);
           const bool now = is_[c] != 0 && is_[j] != 0 && Overlaps(BoxAt(c), BoxAt(j));
           if (then != now && Accepts(c, j)) changes_.push_back(Change{c, j, now});
         }
@@ -298,21 +306,21 @@ class DenseCellCore {
     s.changed.assign(size_, 0);
     s.steady.assign(size_ / kBlock, 0);
     for (uint32_t h = 0; h < size_; ++h) s.steady[h / kBlock] += is_[h];
-    for (uint32_t r = 0; r < changed_.size(); ++r) {
-      const uint32_t h = changed_[r];
+    for (uint32_t r = 0; r < order.size(); ++r) {
+      const uint32_t h = order[r];
       BP_ASSERT(s.changed[h] == 0);  // one operation per slot and query
       s.changed[h] = 1;
       s.steady[h / kBlock] -= is_[h];
-      s.then_live[h] = before_[r].live;
-      if (before_[r].live == 0) continue;
+      s.then_live[h] = before[r].live;
+      if (before[r].live == 0) continue;
       for (size_t a = 0; a < kAxes; ++a) {
-        s.then_rows[At(h, 2 * a)] = before_[r].box.lo[a];
-        s.then_rows[At(h, 2 * a + 1)] = before_[r].box.hi[a];
+        s.then_rows[At(h, 2 * a)] = before[r].box.lo[a];
+        s.then_rows[At(h, 2 * a + 1)] = before[r].box.hi[a];
       }
     }
-    for (uint32_t r = 0; r < changed_.size(); ++r) {
-      const uint32_t c = changed_[r];
-      ScanBlocks(s.then_rows.data(), s.then_live.data(), c, before_[r], s.steady.data(),
+    for (uint32_t r = 0; r < order.size(); ++r) {
+      const uint32_t c = order[r];
+      ScanBlocks(s.then_rows.data(), s.then_live.data(), c, before[r], s.steady.data(),
                  [&](uint32_t j, bool now) {
                    if (s.changed[j] != 0 && j < c) return;  // decided from j's side
                    if (Accepts(c, j)) changes_.push_back(Change{c, j, now});
@@ -423,9 +431,8 @@ class DenseCellCore {
   uint32_t size_ = 0;         // slots (the grid's local handles), a multiple of kBlock
   size_t live_ = 0;
   OptionsTable options_of_;  // by slot
-  // The query's changed slots, in order, with their state at the last query.
-  std::vector<uint32_t> changed_;
-  std::vector<Before> before_;
+  // The scratch of the thread running Apply (its order and before lists: see Scratch).
+  Scratch* scratch_ = nullptr;
   std::vector<Change> changes_;
   size_t tests_ = 0;
 };

@@ -640,14 +640,17 @@ class GridCore {
     GroupUpdates();
     if (pool_ != nullptr) {
       pool_->ParallelFor(touched_.size(), [this](size_t i) { ApplyCell(touched_[i]); });
+      for (uint32_t idx : touched_) FinishCell(idx);
     } else {
+      // One thread: each cell is folded right after it is applied, while its changes are in
+      // the cache; the order of the folds (touched_) is the same.
       for (size_t i = 0; i < touched_.size(); ++i) {
         if (i + 2 < touched_.size()) Prefetch(cells_[touched_[i + 2]].get());
         if (i + 1 < touched_.size()) PrefetchCell(*cells_[touched_[i + 1]]);
         ApplyCell(touched_[i]);
+        FinishCell(touched_[i]);
       }
     }
-    for (uint32_t idx : touched_) FinishCell(idx);
     touched_.clear();
   }
 
