@@ -122,10 +122,6 @@ template <class T>
 inline constexpr bool kHasWideRows = false;
 #endif
 
-}  // namespace detail
-
-namespace detail {
-
 template <int K, Coordinate T>
 class DenseCellCore {
  public:
@@ -141,29 +137,28 @@ class DenseCellCore {
   void Apply(std::span<const uint32_t> erases, std::span<const HandleBox<K, T>> updates,
              std::span<const HandleBox<K, T>> inserts) {
     tests_ = 0;
-    scratch_ = &ThreadScratch();
-    scratch_->order.clear();
-    scratch_->before.clear();
+    Scratch& s = ThreadScratch();
+    s.order.clear();
+    s.before.clear();
     for (uint32_t h : erases) {
       BP_ASSERT(h < size_ && is_[h] != 0);
-      Mark(h, true);
+      Mark(s, h, true);
       is_[h] = 0;  // the box stays: it is the old one
     }
     for (const auto& [h, box] : updates) {
       BP_ASSERT(h < size_ && is_[h] != 0);
-      Mark(h, true);
+      Mark(s, h, true);
       Store(h, box);
     }
     for (const auto& [h, box] : inserts) {
       Reserve(h);
       BP_ASSERT(is_[h] == 0);
-      Mark(h, false);
+      Mark(s, h, false);
       is_[h] = 1;
       Store(h, box);
     }
     live_ = live_ + inserts.size() - erases.size();
-    if (!scratch_->order.empty()) FindChanges();
-    scratch_ = nullptr;
+    if (!s.order.empty()) FindChanges(s);
     if (live_ == 0) Resize(0);  // an emptied cell is recycled by the grid with fresh handles
   }
 
@@ -270,18 +265,18 @@ class DenseCellCore {
   void Reserve(uint32_t h) {
     if (h >= size_) Resize((size_t{h} + kBlock) / kBlock * kBlock);
   }
-  void Mark(uint32_t h, bool live) {
-    scratch_->order.push_back(h);
-    scratch_->before.push_back(Before{live ? BoxAt(h) : Box<K, T>{}, live ? 1u : 0u});
+  void Mark(Scratch& s, uint32_t h, bool live) {
+    s.order.push_back(h);
+    s.before.push_back(Before{live ? BoxAt(h) : Box<K, T>{}, live ? 1u : 0u});
   }
 
   // The pairs whose status differs between the last query and now, each reported once. With
   // few changed slots (most cells in most frames) the current rows stand for "then" too, which
   // they are for every unchanged slot, and the pairs among the changed slots are decided one by
   // one; with more, the scratch holds the rows as they were and one pass settles every pair.
-  void FindChanges() {
-    const std::vector<uint32_t>& order = scratch_->order;
-    const std::vector<Before>& before = scratch_->before;
+  void FindChanges(Scratch& s) {
+    const std::vector<uint32_t>& order = s.order;
+    const std::vector<Before>& before = s.before;
     if (order.size() <= kFewChanges) {
       for (uint32_t r = 0; r < order.size(); ++r) {
         const uint32_t c = order[r];
@@ -300,7 +295,6 @@ class DenseCellCore {
       }
       return;
     }
-    Scratch& s = ThreadScratch();
     s.then_rows.assign(rows_.begin(), rows_.end());
     s.then_live.assign(is_.begin(), is_.end());
     s.changed.assign(size_, 0);
@@ -389,7 +383,8 @@ class DenseCellCore {
 
 #ifdef BP_DENSE_WIDE
   // ScanBlocks with AVX-512: one register per row of a block (two for double), the then and now
-  // tests as bit masks, and only the differing bits visited.
+  // tests as bit masks, and only the differing bits visited. A loop of its own, not a kernel
+  // plugged into ScanBlocks: the intrinsics inline only into a function compiled for AVX-512.
   template <class Report>
   BP_WIDE_TARGET void ScanBlocksWide(const T* then_rows, const uint32_t* then_live, uint32_t c,
                                      const Before& old, const uint32_t* steady, Report& report) {
@@ -431,8 +426,6 @@ class DenseCellCore {
   uint32_t size_ = 0;         // slots (the grid's local handles), a multiple of kBlock
   size_t live_ = 0;
   OptionsTable options_of_;  // by slot
-  // The scratch of the thread running Apply (its order and before lists: see Scratch).
-  Scratch* scratch_ = nullptr;
   std::vector<Change> changes_;
   size_t tests_ = 0;
 };
