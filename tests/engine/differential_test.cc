@@ -331,6 +331,10 @@ template <class C>
 class GridDensePortableDiff : public DifferentialTest<C> {};
 template <class C>
 class GridDensePortableTinyCells : public DifferentialTest<C> {};
+template <class C>
+class GridThreadedDense : public DifferentialTest<C> {};
+template <class C>
+class GridThreadedSegmented : public DifferentialTest<C> {};
 
 using BruteForceShapes = AllShapes<MakeBruteForce>;
 using SapShapes = AllShapes<MakeSegmentedSap<32, 7>>;  // the default options
@@ -381,6 +385,12 @@ TYPED_TEST_SUITE(GridDenseDiff, GridDenseShapes);
 TYPED_TEST_SUITE(GridDenseTinyCells, GridDenseTinyShapes);
 TYPED_TEST_SUITE(GridDensePortableDiff, GridDensePortableShapes);
 TYPED_TEST_SUITE(GridDensePortableTinyCells, GridDensePortableTinyShapes);
+// Cells applied by a pool of 3 (dense, tiny cells: many touched cells, migrations and large
+// objects per query) and 2 threads (segmented cells): the oracle's events, whatever the split.
+using GridThreadedDenseShapes = AllShapes<MakeGrid<CellKind::kDense, 30, 8, 3>>;
+using GridThreadedSegmentedShapes = AllShapes<MakeGrid<CellKind::kSegmented, 30, 64, 2>>;
+TYPED_TEST_SUITE(GridThreadedDense, GridThreadedDenseShapes);
+TYPED_TEST_SUITE(GridThreadedSegmented, GridThreadedSegmentedShapes);
 
 #define BP_DIFFERENTIAL_TESTS(Suite)                                                 \
   TYPED_TEST(Suite, RandomOperationsMatchOracle) {                                   \
@@ -409,6 +419,8 @@ BP_DIFFERENTIAL_TESTS(GridDenseDiff)
 BP_DIFFERENTIAL_TESTS(GridDenseTinyCells)
 BP_DIFFERENTIAL_TESTS(GridDensePortableDiff)
 BP_DIFFERENTIAL_TESTS(GridDensePortableTinyCells)
+BP_DIFFERENTIAL_TESTS(GridThreadedDense)
+BP_DIFFERENTIAL_TESTS(GridThreadedSegmented)
 BP_DIFFERENTIAL_TESTS(DynamicOctreeDiff)
 BP_DIFFERENTIAL_TESTS(DynamicOctreeTinyNodes)
 

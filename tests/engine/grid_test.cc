@@ -305,7 +305,8 @@ std::vector<std::pair<uint64_t, uint64_t>> SceneEvents(unsigned threads, uint32_
                                                        int frames) {
   typename Engine::Options options;
   options.threads = threads;
-  options.cell_size = 6;  // about 40 cells for 3000 objects
+  options.parallel_routing_from = 64;  // routed in parallel too
+  options.cell_size = 6;               // about 40 cells for 3000 objects
   Engine engine(options);
   workload::SceneParams params;
   params.n = n;
@@ -314,9 +315,11 @@ std::vector<std::pair<uint64_t, uint64_t>> SceneEvents(unsigned threads, uint32_
   workload::Scene scene(params);
   RecordingSink<uint64_t> sink;
   std::vector<std::pair<uint64_t, uint64_t>> out;
+  size_t on_workers = 0;
   auto query = [&] {
     sink.Clear();
     engine.Query(sink);
+    on_workers += engine.GetStats().worker_cells;
     out.insert(out.end(), sink.uncollides.begin(), sink.uncollides.end());
     out.emplace_back(~uint64_t{0}, ~uint64_t{0});  // collides follow
     out.insert(out.end(), sink.collides.begin(), sink.collides.end());
@@ -337,6 +340,11 @@ std::vector<std::pair<uint64_t, uint64_t>> SceneEvents(unsigned threads, uint32_
       EXPECT_TRUE(engine.Insert(b.id, workload::ToBox<3, float>(b, scene.grid())).ok());
     }
     query();
+  }
+  // The pool exists and its other threads took part (cells: dozens per query).
+  EXPECT_EQ(engine.GetStats().threads, threads);
+  if (threads > 1) {
+    EXPECT_GT(on_workers, 0u) << "no cell was applied off the caller's thread";
   }
   return out;
 }

@@ -153,14 +153,17 @@ struct MakeBatchSap {
 enum class CellKind { kSegmented, kBatch, kDense, kDensePortable };
 
 /// A grid over SegmentedSap, BatchSap or dense cells with cell size kCellTenths / 10 (0:
-/// automatic) and at most kMaxCells cells per object before it counts as large.
-template <CellKind kCell, int kCellTenths, uint32_t kMaxCells = 16>
+/// automatic), at most kMaxCells cells per object before it counts as large, and kThreads
+/// threads applying the cells.
+template <CellKind kCell, int kCellTenths, uint32_t kMaxCells = 16, unsigned kThreads = 1>
 struct MakeGrid {
   template <int K, class T>
   static std::unique_ptr<Broadphase<K, T>> Create() {
     auto set = [](auto& options) {
       options.cell_size = kCellTenths / 10.0;
       options.max_cells_per_object = kMaxCells;
+      options.threads = kThreads;
+      options.parallel_routing_from = 2;  // the tests' queries are small
     };
     if constexpr (kCell == CellKind::kBatch) {
       GridBatchSapOptions options;
@@ -183,7 +186,7 @@ struct MakeGrid {
                        : kCell == CellKind::kDensePortable ? "GridDensePortable"
                                                            : "GridSegmentedSap";
     return std::string(kind) + "_s" + std::to_string(kCellTenths) + "_m" +
-           std::to_string(kMaxCells);
+           std::to_string(kMaxCells) + (kThreads > 1 ? "_t" + std::to_string(kThreads) : "");
   }
 };
 

@@ -57,6 +57,8 @@ struct Stats {
   size_t cells_queried = 0;  ///< cells the last query applied operations to (grid only)
   size_t large_objects = 0;  ///< objects kept out of the cells for their size (grid only)
   double cell_size = 0;      ///< the grid's cell edge (grid only)
+  size_t threads = 1;        ///< threads that may apply the cells (grid only: its pool)
+  size_t worker_cells = 0;   ///< cells of the last query applied by the pool's other threads
   double margin = 0;         ///< the fattened boxes' margin (0: exact boxes)
   size_t fat_skips = 0;      ///< updates of the last query absorbed by a fat box
 };

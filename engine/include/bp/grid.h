@@ -93,6 +93,9 @@ struct GridOptions {
   /// Threads that apply the touched cells of a query (the caller's included). Events do not
   /// depend on it: cells are independent, and their changes are folded in one fixed order.
   unsigned threads = 1;
+  /// With threads > 1, a query with at least this many updates routes them in parallel (below,
+  /// waking the workers costs more than it saves); 0 never does.
+  size_t parallel_routing_from = 4096;
   /// Options of every cell.
   CellOptions cell{};
 };
@@ -115,6 +118,8 @@ class GridCore {
     if (!(options_.objects_per_cell >= 1)) options_.objects_per_cell = 1;
     if (options_.cell_size > 0 && std::isfinite(options_.cell_size))
       SetCellSize(options_.cell_size);
+    options_.threads = std::max(options_.threads, 1u);
+    if (options_.threads > 1) pool_ = std::make_unique<WorkerPool>(options_.threads);
   }
 
   void Apply(std::span<const uint32_t> erases, std::span<const HandleBox<kDim, Coord>> updates,
@@ -131,23 +136,7 @@ class GridCore {
       placed_ = true;
     }
     for (uint32_t h : erases) EraseObject(h);
-    // Updates come in handle order, not memory order: the loads of each object's records miss
-    // the cache, so they are prefetched a few updates ahead, in the order they depend on each
-    // other (object and box, then its cell references). An update that stays in its cells
-    // touches no cell here: it is appended to routed_ (see RouteUpdate).
-    const size_t n = updates.size();
-    routed_.reserve(n);
-    for (size_t i = 0; i < n; ++i) {
-      if (i + 16 < n) {
-        const uint32_t h = updates[i + 16].handle;
-        Prefetch(&objects_[h]);
-      }
-      if (i + 8 < n) {
-        const Object& o = objects_[updates[i + 8].handle];
-        if (o.nrefs != 0) Prefetch(&refs_[o.refs]);
-      }
-      UpdateObject(updates[i].handle, updates[i].box);
-    }
+    RouteUpdates(updates);
     for (const auto& [h, box] : inserts) InsertObject(h, box);
     for (uint32_t l : changed_large_) {
       large_[l].changed = false;
@@ -172,6 +161,8 @@ class GridCore {
     out->cells_queried = cells_queried_;
     out->large_objects = large_count_;
     out->cell_size = cell_size_;
+    out->threads = pool_ != nullptr ? pool_->threads() : 1;
+    out->worker_cells = pool_ != nullptr ? pool_->last_on_workers() : 0;
     out->chunks = 0;
     for (const auto& c : cells_) {
       if (!c->in_use) continue;
@@ -189,6 +180,9 @@ class GridCore {
 
  private:
   static constexpr uint32_t kNone = ~uint32_t{0};
+  // Touched cells a pool thread claims at a time: long enough runs to prefetch the next cell
+  // within, short enough to balance uneven cells.
+  static constexpr size_t kCellRun = 32;
   using Space = CellSpace<kDim>;
   using CellCoord = typename Space::Coord;
   static constexpr int64_t kLimit = Space::kLimit;
@@ -196,6 +190,18 @@ class GridCore {
   struct CellRef {
     uint32_t cell;
     uint32_t local;
+  };
+  // This query's updates of cell slots, as routed, then grouped by cell (GroupUpdates).
+  struct Routed {
+    uint32_t cell;
+    HandleBox<kDim, Coord> update;  // the cell's local handle and the new box
+  };
+  // One run of a parallel routing: its updates that stay in their cells, their counts by cell
+  // index (zero outside touched), the cells it touched, and the updates left for the serial pass
+  // (indices into the query's updates).
+  struct Shard {
+    std::vector<Routed> routed;
+    std::vector<uint32_t> counts, touched, deferred;
   };
   enum class State : uint8_t { kDead, kLive };
   // One record per global handle, box included; line-aligned when it fits a line (3-D float:
@@ -545,6 +551,89 @@ class GridCore {
     o.nrefs = 0;
   }
 
+  // --- routing updates -------------------------------------------------------------------------
+
+  // Starts loading the records updates[i + 16] and updates[i + 8] read first (GCC 12 drops
+  // these prefetches when they sit in a helper function, so each loop spells them out).
+#define BP_GRID_PREFETCH_UPDATE(updates, i, end)                           \
+  do {                                                                     \
+    if ((i) + 16 < (end)) Prefetch(&objects_[(updates)[(i) + 16].handle]); \
+    if ((i) + 8 < (end)) {                                                 \
+      const Object& ahead = objects_[(updates)[(i) + 8].handle];           \
+      if (ahead.nrefs != 0) Prefetch(&refs_[ahead.refs]);                  \
+    }                                                                      \
+  } while (false)
+
+  // Updates come in handle order, not memory order: the loads of each object's records miss the
+  // cache, so they are prefetched a few updates ahead, in the order they depend on each other
+  // (object and box, then its cell references). An update that stays in its cells touches no
+  // cell here: it is appended to routed_ (see RouteUpdate). With a pool and no large objects,
+  // the updates are cut into one run per thread and those that stay in their cells are routed
+  // in parallel into per-run shards (RouteRun); the rest follow serially, in order.
+  void RouteUpdates(std::span<const HandleBox<kDim, Coord>> updates) {
+    const size_t n = updates.size();
+    if (pool_ == nullptr || large_count_ != 0 || options_.parallel_routing_from == 0 ||
+        n < std::max<size_t>(options_.parallel_routing_from, 2)) {
+      routed_.reserve(n);
+      for (size_t i = 0; i < n; ++i) {
+        BP_GRID_PREFETCH_UPDATE(updates, i, n);
+        UpdateObject(updates[i].handle, updates[i].box);
+      }
+      return;
+    }
+    const size_t runs = pool_->threads();
+    const size_t grain = (n + runs - 1) / runs;
+    shards_.resize(runs);
+    for (Shard& sh : shards_) sh.counts.resize(cells_.size(), 0);
+    pool_->ParallelFor(n, grain, [&](size_t begin, size_t end, unsigned) {
+      RouteRun(updates, begin, end, shards_[begin / grain]);
+    });
+    // Shard counts into the cells' work, in run order; then the deferred updates, serially.
+    for (Shard& sh : shards_) {
+      for (uint32_t idx : sh.touched) {
+        cell_work_[idx].updates += sh.counts[idx];
+        Touch(idx);
+      }
+    }
+    for (Shard& sh : shards_) {
+      for (uint32_t i : sh.deferred) UpdateObject(updates[i].handle, updates[i].box);
+      sh.deferred.clear();
+    }
+  }
+
+  // Routes updates[begin, end) on one pool thread: an update of a small object that stays in its
+  // cells (no cell, handle or reference changes) stores the box and goes into the shard's
+  // routed list and per-cell counts; any other is left for the serial pass (deferred). Writes
+  // only the updated objects' boxes and the shard: the updates name distinct objects.
+  void RouteRun(std::span<const HandleBox<kDim, Coord>> updates, size_t begin, size_t end,
+                Shard& sh) {
+    for (size_t i = begin; i < end; ++i) {
+      BP_GRID_PREFETCH_UPDATE(updates, i, end);
+      const auto& [h, box] = updates[i];
+      Object& o = objects_[h];
+      BP_ASSERT(o.state == State::kLive);
+      bool same_range = o.large == kNone;
+      for (size_t a = 0; a < kAxes && same_range; ++a) {
+        same_range = CellOf(box.lo[a], a) == o.lo[a] && CellOf(box.hi[a], a) == o.hi[a];
+      }
+      if (!same_range) {
+        sh.deferred.push_back(static_cast<uint32_t>(i));
+        continue;
+      }
+      o.box = box;
+      for (uint32_t k = 0; k < o.nrefs; ++k) {
+        const CellRef ref = refs_[o.refs + k];
+        Routed& r = sh.routed.emplace_back();
+        r.cell = ref.cell;
+        r.update.handle = ref.local;
+        r.update.box = box;
+        if (sh.counts[ref.cell]++ == 0) sh.touched.push_back(ref.cell);
+      }
+    }
+  }
+
+#undef BP_GRID_PREFETCH_UPDATE
+
   // --- cells -----------------------------------------------------------------------------------
 
   // The cell at c, created (or recycled) if absent; a new cell lists the large objects over it.
@@ -611,6 +700,7 @@ class GridCore {
 
   // routed_ grouped by cell into grouped_, in the order of touched_: each touched cell's
   // updates become one contiguous run (begin: its offset), in routing order within it.
+  // Shards (parallel routing) come first, in run order, then the serially routed updates.
   void GroupUpdates() {
     uint32_t offset = 0;
     for (uint32_t idx : touched_) {
@@ -620,14 +710,21 @@ class GridCore {
       offset += work.updates;
     }
     grouped_.resize(offset);
+    for (Shard& sh : shards_) {
+      for (const Routed& r : sh.routed) grouped_[cell_work_[r.cell].end++] = r.update;
+      for (uint32_t idx : sh.touched) sh.counts[idx] = 0;
+      sh.routed.clear();
+      sh.touched.clear();
+    }
     for (const Routed& r : routed_) grouped_[cell_work_[r.cell].end++] = r.update;
     routed_.clear();
   }
 
   // Applies every touched cell's buffered operations (in parallel: cells share nothing), then
   // folds each cell's overlap changes into the witness counts in the order of touched_, which
-  // does not depend on the thread count. Erased local handles are freed only then, after the
-  // cell's core has used them.
+  // does not depend on the thread count. A cell's changes leave it already translated to global
+  // handles, into its thread's buffer, so the serial fold reads them sequentially instead of
+  // touching each cell again.
   void QueryCells() {
     cells_queried_ = touched_.size();
     if (touched_.size() * 4 > cells_.size()) {
@@ -638,17 +735,27 @@ class GridCore {
       }
     }
     GroupUpdates();
+    cell_out_.resize(touched_.size());
     if (pool_ != nullptr) {
-      pool_->ParallelFor(touched_.size(), [this](size_t i) { ApplyCell(touched_[i]); });
-      for (uint32_t idx : touched_) FinishCell(idx);
+      witnessed_.resize(pool_->threads());
+      for (auto& w : witnessed_) w.clear();
+      pool_->ParallelFor(touched_.size(), kCellRun, [this](size_t begin, size_t end, unsigned t) {
+        for (size_t i = begin; i < end; ++i) {
+          if (i + 1 < end) PrefetchCell(*cells_[touched_[i + 1]]);
+          ApplyCell(i, t);
+        }
+      });
+      for (size_t i = 0; i < touched_.size(); ++i) FoldCell(i);
     } else {
       // One thread: each cell is folded right after it is applied, while its changes are in
       // the cache; the order of the folds (touched_) is the same.
+      witnessed_.resize(1);
       for (size_t i = 0; i < touched_.size(); ++i) {
         if (i + 2 < touched_.size()) Prefetch(cells_[touched_[i + 2]].get());
         if (i + 1 < touched_.size()) PrefetchCell(*cells_[touched_[i + 1]]);
-        ApplyCell(touched_[i]);
-        FinishCell(touched_[i]);
+        witnessed_[0].clear();
+        ApplyCell(i, 0);
+        FoldCell(i);
       }
     }
     touched_.clear();
@@ -660,22 +767,28 @@ class GridCore {
     if constexpr (requires { cell.core.Prefetch(); }) cell.core.Prefetch();
   }
 
-  void ApplyCell(uint32_t idx) {
+  // Applies touched_[i] on pool thread `thread`: runs the cell's core, appends its changes (as
+  // global handle pairs) to the thread's buffer, and frees the local handles it erased (after
+  // the core has used them). Touches nothing but the cell, its work entry and cell_out_[i].
+  void ApplyCell(size_t i, unsigned thread) {
+    const uint32_t idx = touched_[i];
     GridCell& cell = *cells_[idx];
     const CellWork& work = cell_work_[idx];
     cell.core.Apply(cell.erases, std::span(grouped_.data() + work.begin, work.updates),
                     cell.inserts);
-  }
-
-  void FinishCell(uint32_t idx) {
-    GridCell& cell = *cells_[idx];
     Stats s;
     cell.core.FillStats(&s);
-    swaps_ += s.swaps;
-    tests_ += s.overlap_tests;
-    global_ = global_ || s.global_sort;
-    CellPairs(cell.core).DrainChanges(
-        [&](uint32_t a, uint32_t b, bool now) { Witness(cell.global[a], cell.global[b], now); });
+    std::vector<Witnessed>& out = witnessed_[thread];
+    CellOut& co = cell_out_[i];
+    co.thread = thread;
+    co.begin = static_cast<uint32_t>(out.size());
+    co.swaps = s.swaps;
+    co.tests = s.overlap_tests;
+    co.global_sort = s.global_sort;
+    CellPairs(cell.core).DrainChanges([&](uint32_t a, uint32_t b, bool now) {
+      out.push_back(Witnessed{cell.global[a], cell.global[b], now});
+    });
+    co.count = static_cast<uint32_t>(out.size()) - co.begin;
     for (uint32_t local : cell.erases) {
       cell.global[local] = kNone;
       cell.free_local.push_back(local);
@@ -683,12 +796,27 @@ class GridCore {
     cell.erases.clear();
     cell.inserts.clear();
     cell_work_[idx] = CellWork{};
-    if (cell.members == 0) {
+    co.emptied = cell.members == 0;
+    if (co.emptied) {
       BP_ASSERT(cell.core.live() == 0);
-      cell_of_.Erase(cell.key);
       cell.global.clear();
       cell.free_local.clear();
       cell.large.clear();
+    }
+  }
+
+  // Folds touched_[i]'s changes into the witness counts; recycles it if it emptied.
+  void FoldCell(size_t i) {
+    const CellOut& co = cell_out_[i];
+    swaps_ += co.swaps;
+    tests_ += co.tests;
+    global_ = global_ || co.global_sort;
+    const Witnessed* w = witnessed_[co.thread].data() + co.begin;
+    for (uint32_t k = 0; k < co.count; ++k) Witness(w[k].a, w[k].b, w[k].now);
+    if (co.emptied) {
+      const uint32_t idx = touched_[i];
+      GridCell& cell = *cells_[idx];
+      cell_of_.Erase(cell.key);
       cell.in_use = false;
       free_cells_.push_back(idx);
     }
@@ -955,12 +1083,8 @@ class GridCore {
   std::vector<uint32_t> free_cells_;
   FlatMap<uint64_t, uint32_t> cell_of_;  // packed coordinate -> cell index
   std::vector<uint32_t> touched_;
-  // This query's updates of cell slots, as routed, then grouped by cell (GroupUpdates).
-  struct Routed {
-    uint32_t cell;
-    HandleBox<kDim, Coord> update;  // the cell's local handle and the new box
-  };
   std::vector<Routed> routed_;
+  std::vector<Shard> shards_;
   std::vector<HandleBox<kDim, Coord>> grouped_;
   // Per cell index, this query's work: touched (in touched_), updates routed to it, and its
   // run [begin, end) in grouped_. Kept apart from the cells so that routing reads 12 bytes.
@@ -970,6 +1094,20 @@ class GridCore {
     bool touched = false;
   };
   std::vector<CellWork> cell_work_;
+  // What applying a cell leaves for the fold (by position in touched_): its changes, as global
+  // handle pairs in witnessed_[thread][begin, begin + count), its counters, and whether it emptied.
+  struct Witnessed {
+    uint32_t a, b;
+    bool now;
+  };
+  struct CellOut {
+    uint32_t thread = 0;
+    uint32_t begin = 0, count = 0;
+    bool global_sort = false, emptied = false;
+    size_t swaps = 0, tests = 0;
+  };
+  std::vector<std::vector<Witnessed>> witnessed_;  // per pool thread
+  std::vector<CellOut> cell_out_;
   std::vector<Large> large_;
   std::vector<uint32_t> free_large_;
   std::vector<uint32_t> changed_large_;

@@ -54,6 +54,12 @@ Status GridCore<Cell>::Validate() const {
   if (!touched_.empty() || !changed_large_.empty() || !routed_.empty()) {
     return fail("work left after a query");
   }
+  for (const Shard& sh : shards_) {
+    if (!sh.routed.empty() || !sh.touched.empty() || !sh.deferred.empty() ||
+        std::any_of(sh.counts.begin(), sh.counts.end(), [](uint32_t c) { return c != 0; })) {
+      return fail("routing shard left with work after a query");
+    }
+  }
   if (cell_work_.size() != cells_.size()) return fail("per-cell work table of the wrong size");
 
   FlatMap<uint64_t, uint32_t> count;

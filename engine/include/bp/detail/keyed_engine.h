@@ -174,6 +174,9 @@ class KeyedEngine final : public Broadphase<Core::kDim, typename Core::Coord, Ke
       if (slots_[h].pending == Pending::kInsert) tracker.SetOptions(h, options);
     }
     insert_options_.clear();
+    // Updates and inserts are committed here, while their slots are in the cache (nothing reads
+    // their pending state during the core's Apply); erased and cancelled handles are committed
+    // after it, as their handles may be freed only then (invariant 2).
     for (size_t i = 0; i < queue_.size(); ++i) {
       if (i + 8 < queue_.size()) __builtin_prefetch(&slots_[queue_[i + 8]]);
       const uint32_t h = queue_[i];
@@ -181,7 +184,8 @@ class KeyedEngine final : public Broadphase<Core::kDim, typename Core::Coord, Ke
       switch (slot.pending) {
         case Pending::kErase:
           erases_.push_back(h);
-          break;
+          after_apply_.push_back(h);
+          continue;
         case Pending::kUpdate:
           PushBox(updates_, h, slot.box);
           break;
@@ -189,9 +193,14 @@ class KeyedEngine final : public Broadphase<Core::kDim, typename Core::Coord, Ke
           PushBox(inserts_, h, slot.box);
           break;
         case Pending::kNone:
-          break;
+          after_apply_.push_back(h);
+          continue;
       }
+      slot.queued = false;
+      slot.live = true;
+      slot.pending = Pending::kNone;
     }
+    queue_.clear();
     core_.Apply(erases_, updates_, inserts_);
 
     collides_.clear();
@@ -203,20 +212,18 @@ class KeyedEngine final : public Broadphase<Core::kDim, typename Core::Coord, Ke
       (now ? collides_ : uncollides_).push_back(std::move(pair));
     });
 
-    // Commit the slot states, then free erased and cancelled handles (invariant 2).
-    for (uint32_t h : queue_) {
+    // Commit the erased and cancelled slots and free their handles (invariant 2).
+    for (uint32_t h : after_apply_) {
       Slot& slot = slots_[h];
       slot.queued = false;
       if (slot.pending == Pending::kErase) {
         index_.Erase(slot.key, h);  // false if the key was rekeyed to another handle
         slot.live = false;
-      } else if (slot.pending != Pending::kNone) {
-        slot.live = true;
       }
       slot.pending = Pending::kNone;
       if (!slot.live) free_.push_back(h);
     }
-    queue_.clear();
+    after_apply_.clear();
 
     std::sort(uncollides_.begin(), uncollides_.end());
     std::sort(collides_.begin(), collides_.end());
@@ -415,6 +422,7 @@ class KeyedEngine final : public Broadphase<Core::kDim, typename Core::Coord, Ke
   KeyIndex<Key> index_;  // key -> handle (see invariant 1)
   std::vector<uint32_t> free_;
   std::vector<uint32_t> queue_;
+  std::vector<uint32_t> after_apply_;  // queued erases and cancelled inserts, during Query
   std::vector<std::pair<uint32_t, ObjectOptions>> insert_options_;  // pending inserts' options
   // Per-query buffers, kept to reuse their allocations.
   std::vector<uint32_t> erases_;

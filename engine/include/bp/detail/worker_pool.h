@@ -29,7 +29,9 @@ class WorkerPool {
  public:
   /// A pool running loops on `threads` threads in all (the caller's included); at least 1.
   explicit WorkerPool(unsigned threads) {
-    for (unsigned i = 1; i < std::max(threads, 1u); ++i) workers_.emplace_back([this] { Work(); });
+    for (unsigned i = 1; i < std::max(threads, 1u); ++i) {
+      workers_.emplace_back([this, i] { Work(i); });
+    }
   }
   ~WorkerPool() {
     {
@@ -44,40 +46,54 @@ class WorkerPool {
 
   /// Threads in all, the caller's included.
   unsigned threads() const { return static_cast<unsigned>(workers_.size()) + 1; }
+  /// Indices the last ParallelFor ran on the workers (not the caller): how much was shared.
+  size_t last_on_workers() const { return on_workers_.load(std::memory_order_relaxed); }
 
-  /// Runs body(i) for every i in [0, n), spread over the pool's threads; returns when all ran.
-  void ParallelFor(size_t n, const std::function<void(size_t)>& body) {
+  /// Runs body(begin, end, thread) over [0, n) cut into runs of at most `grain` consecutive
+  /// indices, spread over the pool's threads (each claims the next run when it is done with
+  /// one); returns when all ran. thread is the ordinal of the thread running the run: 0 for the
+  /// caller, 1.. for the workers (below threads()), so a body can write to per-thread buffers
+  /// without locks, and a run lets it prefetch its own next index.
+  using Body = std::function<void(size_t, size_t, unsigned)>;
+  void ParallelFor(size_t n, size_t grain, const Body& body) {
+    on_workers_.store(0, std::memory_order_relaxed);
     if (workers_.empty() || n < 2) {
-      for (size_t i = 0; i < n; ++i) body(i);
+      if (n != 0) body(0, n, 0);
       return;
     }
     {
       std::lock_guard<std::mutex> lock(mutex_);
       body_ = &body;
       n_ = n;
+      grain_ = std::max<size_t>(grain, 1);
       next_.store(0, std::memory_order_relaxed);
       busy_ = workers_.size();
       ++generation_;
     }
     wake_.notify_all();
-    Run(body, n);
+    Run(body, n, 0);
     std::unique_lock<std::mutex> lock(mutex_);
     done_.wait(lock, [this] { return busy_ == 0; });
     body_ = nullptr;
   }
 
  private:
-  void Run(const std::function<void(size_t)>& body, size_t n) {
-    for (size_t i = next_.fetch_add(1, std::memory_order_relaxed); i < n;
-         i = next_.fetch_add(1, std::memory_order_relaxed)) {
-      body(i);
+  // Runs indices until none is left; returns how many this thread ran.
+  size_t Run(const Body& body, size_t n, unsigned thread) {
+    size_t ran = 0;
+    for (size_t i = next_.fetch_add(grain_, std::memory_order_relaxed); i < n;
+         i = next_.fetch_add(grain_, std::memory_order_relaxed)) {
+      const size_t end = std::min(n, i + grain_);
+      body(i, end, thread);
+      ran += end - i;
     }
+    return ran;
   }
 
-  void Work() {
+  void Work(unsigned thread) {
     uint64_t seen = 0;
     for (;;) {
-      const std::function<void(size_t)>* body;
+      const Body* body;
       size_t n;
       {
         std::unique_lock<std::mutex> lock(mutex_);
@@ -87,7 +103,7 @@ class WorkerPool {
         body = body_;
         n = n_;
       }
-      Run(*body, n);
+      on_workers_.fetch_add(Run(*body, n, thread), std::memory_order_relaxed);
       {
         std::lock_guard<std::mutex> lock(mutex_);
         --busy_;
@@ -100,9 +116,11 @@ class WorkerPool {
   std::mutex mutex_;
   std::condition_variable wake_;
   std::condition_variable done_;
-  const std::function<void(size_t)>* body_ = nullptr;
+  const Body* body_ = nullptr;
   size_t n_ = 0;
+  size_t grain_ = 1;
   std::atomic<size_t> next_{0};
+  std::atomic<size_t> on_workers_{0};
   size_t busy_ = 0;
   uint64_t generation_ = 0;
   bool stop_ = false;
