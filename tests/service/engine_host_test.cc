@@ -190,6 +190,18 @@ TEST(EngineHost, RandomBatchesMatchTheOracle) {
   }
 }
 
+// engine.threads reaches the grid engines: their pool has that many threads (it once did not).
+TEST(EngineHost, ThreadsReachTheGridEngines) {
+  for (const char* algorithm : {"grid_segmented_sap", "grid_batch_sap", "grid_dense"}) {
+    EngineConfig config;
+    config.algorithm = algorithm;
+    config.threads = 3;
+    std::unique_ptr<EngineHost> host;
+    ASSERT_TRUE(MakeEngineHost(config, 1 << 20, &host).ok()) << algorithm;
+    EXPECT_EQ(host->GetStats().threads, 3u) << algorithm;
+  }
+}
+
 TEST(EngineHost, UnknownAlgorithmOrDimensionIsRefused) {
   EngineConfig config;
   std::unique_ptr<EngineHost> host;
