@@ -385,9 +385,10 @@ TYPED_TEST_SUITE(GridDenseDiff, GridDenseShapes);
 TYPED_TEST_SUITE(GridDenseTinyCells, GridDenseTinyShapes);
 TYPED_TEST_SUITE(GridDensePortableDiff, GridDensePortableShapes);
 TYPED_TEST_SUITE(GridDensePortableTinyCells, GridDensePortableTinyShapes);
-// Cells applied by a pool of 3 (dense, tiny cells: many touched cells, migrations and large
-// objects per query) and 2 threads (segmented cells): the oracle's events, whatever the split.
-using GridThreadedDenseShapes = AllShapes<MakeGrid<CellKind::kDense, 30, 8, 3>>;
+// Cells applied by a pool of 3 (dense, automatic size: few large objects, so most queries route
+// their updates on the pool too) and 2 threads (segmented, tiny cells: many touched cells,
+// migrations and large objects per query): the oracle's events, whatever the split.
+using GridThreadedDenseShapes = AllShapes<MakeGrid<CellKind::kDense, 0, 16, 3>>;
 using GridThreadedSegmentedShapes = AllShapes<MakeGrid<CellKind::kSegmented, 30, 64, 2>>;
 TYPED_TEST_SUITE(GridThreadedDense, GridThreadedDenseShapes);
 TYPED_TEST_SUITE(GridThreadedSegmented, GridThreadedSegmentedShapes);

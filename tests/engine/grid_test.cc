@@ -306,7 +306,7 @@ std::vector<std::pair<uint64_t, uint64_t>> SceneEvents(unsigned threads, uint32_
   typename Engine::Options options;
   options.threads = threads;
   options.parallel_routing_from = 64;  // routed in parallel too
-  options.cell_size = 6;               // about 40 cells for 3000 objects
+  options.cell_size = 6;               // about 300 cells for 3000 objects
   Engine engine(options);
   workload::SceneParams params;
   params.n = n;
@@ -315,11 +315,12 @@ std::vector<std::pair<uint64_t, uint64_t>> SceneEvents(unsigned threads, uint32_
   workload::Scene scene(params);
   RecordingSink<uint64_t> sink;
   std::vector<std::pair<uint64_t, uint64_t>> out;
-  size_t on_workers = 0;
+  size_t on_workers = 0, pool_routed = 0;
   auto query = [&] {
     sink.Clear();
     engine.Query(sink);
     on_workers += engine.GetStats().worker_cells;
+    pool_routed += engine.GetStats().pool_routed;
     out.insert(out.end(), sink.uncollides.begin(), sink.uncollides.end());
     out.emplace_back(~uint64_t{0}, ~uint64_t{0});  // collides follow
     out.insert(out.end(), sink.collides.begin(), sink.collides.end());
@@ -345,6 +346,9 @@ std::vector<std::pair<uint64_t, uint64_t>> SceneEvents(unsigned threads, uint32_
   EXPECT_EQ(engine.GetStats().threads, threads);
   if (threads > 1) {
     EXPECT_GT(on_workers, 0u) << "no cell was applied off the caller's thread";
+    EXPECT_GT(pool_routed, 0u) << "no update was routed on the pool";
+  } else {
+    EXPECT_EQ(pool_routed, 0u);
   }
   return out;
 }

@@ -59,6 +59,7 @@ struct Stats {
   double cell_size = 0;      ///< the grid's cell edge (grid only)
   size_t threads = 1;        ///< threads that may apply the cells (grid only: its pool)
   size_t worker_cells = 0;   ///< cells of the last query applied by the pool's other threads
+  size_t pool_routed = 0;    ///< updates of the last query routed on the pool (grid only)
   double margin = 0;         ///< the fattened boxes' margin (0: exact boxes)
   size_t fat_skips = 0;      ///< updates of the last query absorbed by a fat box
 };

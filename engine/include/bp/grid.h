@@ -124,7 +124,7 @@ class GridCore {
 
   void Apply(std::span<const uint32_t> erases, std::span<const HandleBox<kDim, Coord>> updates,
              std::span<const HandleBox<kDim, Coord>> inserts) {
-    swaps_ = tests_ = cells_queried_ = 0;
+    swaps_ = tests_ = cells_queried_ = pool_routed_ = 0;
     global_ = rebuilt_ = false;
     if (!placed_ && !inserts.empty()) {
       // First objects: choose the origin, and the automatic size, from them.
@@ -163,6 +163,7 @@ class GridCore {
     out->cell_size = cell_size_;
     out->threads = pool_ != nullptr ? pool_->threads() : 1;
     out->worker_cells = pool_ != nullptr ? pool_->last_on_workers() : 0;
+    out->pool_routed = pool_routed_;
     out->chunks = 0;
     for (const auto& c : cells_) {
       if (!c->in_use) continue;
@@ -595,7 +596,9 @@ class GridCore {
         Touch(idx);
       }
     }
+    pool_routed_ = n;
     for (Shard& sh : shards_) {
+      pool_routed_ -= sh.deferred.size();
       for (uint32_t i : sh.deferred) UpdateObject(updates[i].handle, updates[i].box);
       sh.deferred.clear();
     }
@@ -1124,7 +1127,7 @@ class GridCore {
   std::vector<uint32_t> candidates_, found_, scratch_;
   std::vector<double> extents_;
   // Counters of the last query.
-  size_t swaps_ = 0, tests_ = 0, cells_queried_ = 0;
+  size_t swaps_ = 0, tests_ = 0, cells_queried_ = 0, pool_routed_ = 0;
   bool global_ = false, rebuilt_ = false;
 };
 

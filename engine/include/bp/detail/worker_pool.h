@@ -51,9 +51,10 @@ class WorkerPool {
 
   /// Runs body(begin, end, thread) over [0, n) cut into runs of at most `grain` consecutive
   /// indices, spread over the pool's threads (each claims the next run when it is done with
-  /// one); returns when all ran. thread is the ordinal of the thread running the run: 0 for the
-  /// caller, 1.. for the workers (below threads()), so a body can write to per-thread buffers
-  /// without locks, and a run lets it prefetch its own next index.
+  /// one); returns when all ran. Without workers, or for n < 2, the caller runs [0, n) as one.
+  /// thread is the ordinal of the thread running the run: 0 for the caller, 1.. for the workers
+  /// (below threads()), so a body can write to per-thread buffers without locks, and a run lets it
+  /// prefetch its own next index.
   using Body = std::function<void(size_t, size_t, unsigned)>;
   void ParallelFor(size_t n, size_t grain, const Body& body) {
     on_workers_.store(0, std::memory_order_relaxed);
