@@ -626,10 +626,7 @@ class GridCore {
       o.box = box;
       for (uint32_t k = 0; k < o.nrefs; ++k) {
         const CellRef ref = refs_[o.refs + k];
-        Routed& r = sh.routed.emplace_back();
-        r.cell = ref.cell;
-        r.update.handle = ref.local;
-        r.update.box = box;
+        PushRouted(sh.routed, ref, box);
         if (sh.counts[ref.cell]++ == 0) sh.touched.push_back(ref.cell);
       }
     }
@@ -693,12 +690,16 @@ class GridCore {
   // per-cell buffer cost two cache misses, its header and its end) and counted per cell;
   // QueryCells groups routed_ by cell.
   void RouteUpdate(CellRef ref, const BoxType& box) {
-    Routed& r = routed_.emplace_back();
+    PushRouted(routed_, ref, box);
+    ++cell_work_[ref.cell].updates;
+    Touch(ref.cell);
+  }
+  // Appends {cell, local, box} to v, written in place (see PushBox).
+  static void PushRouted(std::vector<Routed>& v, CellRef ref, const BoxType& box) {
+    Routed& r = v.emplace_back();
     r.cell = ref.cell;
     r.update.handle = ref.local;
     r.update.box = box;
-    ++cell_work_[ref.cell].updates;
-    Touch(ref.cell);
   }
 
   // routed_ grouped by cell into grouped_, in the order of touched_: each touched cell's
