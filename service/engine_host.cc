@@ -229,11 +229,34 @@ class TypedHost final : public EngineHost {
     if (!CheckShape(batch, op, boxes, refuse)) return;
     const bool use32 = boxes.lo32_size() > 0;
     const uint32_t producer = batch.producer();
+    // Updates reach the engine in runs through UpdateMany, which overlaps their look-ups. A run
+    // ends before an item refused here, so that refusals stay in index order.
+    auto flush = [&]() {
+      if (items_.empty()) return;
+      const size_t refused = engine_->UpdateMany(items_, [&](size_t k, const Status& s) {
+        const uint32_t index = item_index_[k];
+        const uint64_t id = boxes.ids(static_cast<int>(index));
+        if (s.code() == StatusCode::kNotFound) {
+          refuse(op, index, id, wire::UNKNOWN_ID,
+                 "no such object of producer " + std::to_string(producer));
+        } else {
+          refuse(op, index, id, wire::ENGINE_REFUSED, s.ToString());
+        }
+      });
+      out->updates += items_.size() - refused;
+      items_.clear();
+      item_index_.clear();
+    };
+    auto refuse_here = [&](uint32_t index, uint64_t id, wire::RejectReason reason,
+                           std::string why) {
+      flush();
+      refuse(op, index, id, reason, std::move(why));
+    };
     for (int i = 0; i < boxes.ids_size(); ++i) {
       const uint32_t index = static_cast<uint32_t>(i);
       const uint64_t id = boxes.ids(i);
       if (id >= kLocalIdLimit) {
-        refuse(op, index, id, wire::ID_OUT_OF_RANGE, "ids must be below 2^48");
+        refuse_here(index, id, wire::ID_OUT_OF_RANGE, "ids must be below 2^48");
         continue;
       }
       BoxT box;
@@ -245,20 +268,13 @@ class TypedHost final : public EngineHost {
               ? ConvertBox(boxes.lo32().data() + at, boxes.hi32().data() + at, &box, &reason, &why)
               : ConvertBox(boxes.lo64().data() + at, boxes.hi64().data() + at, &box, &reason, &why);
       if (!converted) {
-        refuse(op, index, id, reason, why);
+        refuse_here(index, id, reason, std::move(why));
         continue;
       }
       const uint64_t key = GlobalKey(producer, id);
       if (op == wire::OP_UPDATE) {
-        Status s = engine_->Update(key, box);
-        if (s.code() == StatusCode::kNotFound) {
-          refuse(op, index, id, wire::UNKNOWN_ID,
-                 "no such object of producer " + std::to_string(producer));
-        } else if (!s.ok()) {
-          refuse(op, index, id, wire::ENGINE_REFUSED, s.ToString());
-        } else {
-          ++out->updates;
-        }
+        items_.push_back({key, box});
+        item_index_.push_back(index);
         continue;
       }
       ObjectOptions options;
@@ -295,9 +311,12 @@ class TypedHost final : public EngineHost {
       ++objects_;
       ++out->inserts;
     }
+    flush();
   }
 
   std::unique_ptr<Engine> engine_;
+  std::vector<typename Engine::Item> items_;  // a run of a batch's updates, for UpdateMany
+  std::vector<uint32_t> item_index_;          // their indexes in the batch
   uint64_t max_objects_;
   uint64_t objects_ = 0;
   uint64_t overlaps_ = 0;

@@ -5,6 +5,7 @@
 #include <algorithm>
 #include <cstdint>
 #include <limits>
+#include <map>
 #include <random>
 #include <set>
 #include <string>
@@ -130,7 +131,7 @@ class DifferentialTest : public ::testing::Test {
 
   void RandomOp() {
     bool empty = model_.boxes().empty();
-    switch (Below(15)) {
+    switch (Below(16)) {
       case 0:
       case 1:  // insert a new key, or re-insert a key erased earlier
         if (!erased_keys_.empty() && Below(3) == 0) {
@@ -199,6 +200,9 @@ class DifferentialTest : public ::testing::Test {
       case 12:  // bad calls are refused and change nothing
         BadCalls();
         return;
+      case 14:  // a batch of updates through UpdateMany, with a repeated key and bad items
+        if (!empty) UpdateBatch();
+        return;
       case 13:  // a burst: more new objects than live ones (bulk loads), among other changes
         if (Below(4) == 0 && model_.boxes().size() < 150) {
           size_t n = model_.boxes().size() + 1 + Below(8);
@@ -216,6 +220,39 @@ class DifferentialTest : public ::testing::Test {
           DoUpdate(key, b);
         }
         return;
+    }
+  }
+
+  // Items past the front end's look-ahead (16), so that its ring of hashes wraps; a later item
+  // on a key wins; refused items are reported by index with Update's code and change nothing.
+  void UpdateBatch() {
+    std::vector<typename Broadphase<K, T>::Item> items;
+    std::map<size_t, StatusCode> bad;  // index -> the code it must be refused with
+    const size_t n = 1 + Below(40);
+    for (size_t i = 0; i < n; ++i) {
+      const uint64_t pick = Below(12);
+      if (pick == 0) {
+        bad[items.size()] = StatusCode::kNotFound;
+        items.push_back({next_key_ + 1000000 + i, RandomBox()});
+      } else if (pick == 1) {
+        BoxType inverted = RandomBox();
+        inverted.lo[0] = static_cast<T>(inverted.hi[0] + 1);
+        bad[items.size()] = StatusCode::kInvalidArgument;
+        items.push_back({RandomLiveKey(), inverted});
+      } else if (pick == 2 && !items.empty() && !bad.count(items.size() - 1)) {
+        items.push_back({items.back().key, RandomBox()});  // the same key again: this box wins
+      } else {
+        items.push_back({RandomLiveKey(), RandomBox()});
+      }
+    }
+    std::map<size_t, StatusCode> refused;
+    const size_t count = engine_->UpdateMany(items, [&](size_t i, const Status& s) {
+      EXPECT_TRUE(refused.emplace(i, s.code()).second) << "item " << i << " refused twice";
+    });
+    EXPECT_EQ(count, refused.size());
+    ASSERT_EQ(refused, bad);
+    for (size_t i = 0; i < items.size(); ++i) {
+      if (!bad.count(i)) model_.boxes()[items[i].key] = items[i].box;
     }
   }
 

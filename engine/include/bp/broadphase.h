@@ -20,6 +20,7 @@
 #include <cstddef>
 #include <cstdint>
 #include <functional>
+#include <span>
 #include <string>
 
 #include "bp/box.h"
@@ -64,11 +65,21 @@ struct Stats {
   size_t fat_skips = 0;      ///< updates of the last query absorbed by a fat box
 };
 
+/// One item of Broadphase::UpdateMany: a key and its new box.
+template <int K, Coordinate T, class Key = uint64_t>
+struct KeyedBox {
+  Key key{};
+  Box<K, T> box;
+};
+
 /// The interface of every broadphase: K axes, coordinates T, client keys Key.
 template <int K, Coordinate T, class Key = uint64_t>
 class Broadphase {
  public:
   using BoxType = Box<K, T>;
+  using Item = KeyedBox<K, T, Key>;
+  /// Told the index of each item UpdateMany refused, and why.
+  using RefusedFn = std::function<void(size_t index, const Status& status)>;
   virtual ~Broadphase() = default;
 
   /// Buffers the insertion of key with box and options, fixed until its erase. AlreadyExists if
@@ -78,6 +89,22 @@ class Broadphase {
   Status Insert(const Key& key, const BoxType& box) { return Insert(key, box, ObjectOptions{}); }
   /// Buffers a new box for key. NotFound if key is not live; InvalidArgument if the box is invalid.
   virtual Status Update(const Key& key, const BoxType& box) = 0;
+  /// Update(item.key, item.box) for every item, in order (a later item on a key wins). A refused
+  /// item changes nothing and is passed to refused (when set) with its index and the Status
+  /// Update would return; the other items are kept. Returns the number refused. Engines may
+  /// override it to overlap the memory look-ups of many items: the front end of this library's
+  /// engines looks up the keys and slots of the items ahead while it updates the current one,
+  /// which a loop of Update calls cannot do. The daemon and bpbench pass their updates here.
+  virtual size_t UpdateMany(std::span<const Item> items, const RefusedFn& refused = nullptr) {
+    size_t count = 0;
+    for (size_t i = 0; i < items.size(); ++i) {
+      Status s = Update(items[i].key, items[i].box);
+      if (s.ok()) continue;
+      ++count;
+      if (refused) refused(i, s);
+    }
+    return count;
+  }
   /// Buffers the erasure of key. NotFound if key is not live.
   virtual Status Erase(const Key& key) = 0;
   /// Applies all buffered calls and reports the overlap changes to sink in canonical order.

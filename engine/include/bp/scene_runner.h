@@ -8,6 +8,7 @@
 #include <chrono>
 #include <cstdint>
 #include <string>
+#include <vector>
 
 #include "bp/broadphase.h"
 #include "bp/workload.h"
@@ -43,7 +44,9 @@ class SceneRunner {
     uint64_t uncollides = sink_.uncollides;
     auto start = Clock::now();
     for (uint64_t id : ops_.erases) Check(engine_.Erase(id), id);
-    for (const SceneBox& b : ops_.updates) Check(engine_.Update(b.id, Convert(b)), b.id);
+    items_.clear();
+    for (const SceneBox& b : ops_.updates) items_.push_back({b.id, Convert(b)});
+    engine_.UpdateMany(items_, [&](size_t i, const Status& s) { Check(s, items_[i].key); });
     for (const SceneBox& b : ops_.inserts) {
       Check(engine_.Insert(b.id, Convert(b), Options(b)), b.id);
     }
@@ -104,6 +107,7 @@ class SceneRunner {
   Scene scene_;
   bool static_rest_;
   FrameOps ops_;
+  std::vector<typename Broadphase<K, T>::Item> items_;  // the frame's updates
   HashSink sink_;
   HashChain chain_;
   uint64_t pairs_frame0_ = 0;

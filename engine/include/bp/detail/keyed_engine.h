@@ -126,23 +126,51 @@ class KeyedEngine final : public Broadphase<Core::kDim, typename Core::Coord, Ke
 
   Status Update(const Key& key, const BoxType& box) override {
     if (Status s = ValidateBox(box); !s.ok()) return Annotate(s, "update");
-    const uint32_t h = Find(key);
-    if (h == kNoHandle || !Present(slots_[h])) {
-      return Status(StatusCode::kNotFound, "update: unknown key");
-    }
-    Slot& slot = slots_[h];
-    if (margin_ > T{}) {
-      if (FatEnough(slot.box, box)) {
-        ++fat_skips_;
-        return Status::Ok();
+    return UpdateHandle(Find(key), box);
+  }
+
+  /// As Update per item, with the look-ups of later items started early: the key index's line
+  /// kAhead items ahead, the slot its entry names kAhead / 2 items ahead. In a large scene both
+  /// are cache misses, and a loop of Update calls waits for them one after the other (perf on
+  /// the daemon at S1-200k: 24% of its time in Update, nearly all on those two loads). Each
+  /// key's hash is computed once, kAhead items ahead, and kept in a ring until its item's turn.
+  size_t UpdateMany(std::span<const typename Base::Item> items,
+                    const typename Base::RefusedFn& refused) override {
+    constexpr size_t kAhead = 16;
+    uint32_t tags[kAhead];
+    const size_t n = items.size();
+    const size_t first = std::min(n, kAhead);
+    for (size_t i = 0; i < first; ++i) tags[i] = KeyIndex<Key>::Tag(items[i].key);
+    size_t count = 0;
+    for (size_t i = 0; i < n; ++i) {
+      if (i + kAhead / 2 < n) {
+        const uint32_t guess = index_.Guess(tags[(i + kAhead / 2) % kAhead]);
+        if (guess < slots_.size()) {
+          const char* slot = reinterpret_cast<const char*>(&slots_[guess]);
+          __builtin_prefetch(slot);
+          __builtin_prefetch(slot + sizeof(Slot) - 1);
+        }
       }
-      slot.box = Fatten(box);
-    } else {
-      slot.box = box;
+      const uint32_t tag = tags[i % kAhead];
+      if (i + kAhead < n) {
+        const uint32_t ahead = KeyIndex<Key>::Tag(items[i + kAhead].key);
+        tags[i % kAhead] = ahead;
+        if (const void* line = index_.HomeLine(ahead)) __builtin_prefetch(line);
+      }
+      const Key& key = items[i].key;
+      Status s = ValidateBox(items[i].box);
+      if (s.ok()) {
+        const uint32_t h =
+            index_.Find(key, tag, [this](uint32_t x) -> const Key& { return slots_[x].key; });
+        s = UpdateHandle(h, items[i].box);
+      } else {
+        s = Annotate(s, "update");
+      }
+      if (s.ok()) continue;
+      ++count;
+      if (refused) refused(i, s);
     }
-    if (slot.pending == Pending::kNone) slot.pending = Pending::kUpdate;
-    Enqueue(h);
-    return Status::Ok();
+    return count;
   }
 
   Status Erase(const Key& key) override {
@@ -331,6 +359,26 @@ class KeyedEngine final : public Broadphase<Core::kDim, typename Core::Coord, Ke
     bool queued = false;  // in queue_
     Pending pending = Pending::kNone;
   };
+
+  // Update of the handle Find gave for a key (kNoHandle: not found), its box validated.
+  Status UpdateHandle(uint32_t h, const BoxType& box) {
+    if (h == kNoHandle || !Present(slots_[h])) {
+      return Status(StatusCode::kNotFound, "update: unknown key");
+    }
+    Slot& slot = slots_[h];
+    if (margin_ > T{}) {
+      if (FatEnough(slot.box, box)) {
+        ++fat_skips_;
+        return Status::Ok();
+      }
+      slot.box = Fatten(box);
+    } else {
+      slot.box = box;
+    }
+    if (slot.pending == Pending::kNone) slot.pending = Pending::kUpdate;
+    Enqueue(h);
+    return Status::Ok();
+  }
 
   // Grows box by m on every side, saturating at the limits of T (m >= 0).
   static BoxType Grow(const BoxType& box, T m) {
