@@ -240,8 +240,20 @@ class KeyedEngine final : public Broadphase<Core::kDim, typename Core::Coord, Ke
       (now ? collides_ : uncollides_).push_back(std::move(pair));
     });
 
-    // Commit the erased and cancelled slots and free their handles (invariant 2).
-    for (uint32_t h : after_apply_) {
+    // Commit the erased and cancelled slots and free their handles (invariant 2). The core's
+    // apply has evicted their slots and key-index lines since the first walk: both are
+    // prefetched ahead (churn erases keys all over the table).
+    for (size_t i = 0; i < after_apply_.size(); ++i) {
+      if (i + 16 < after_apply_.size()) __builtin_prefetch(&slots_[after_apply_[i + 16]]);
+      if (i + 8 < after_apply_.size()) {
+        const Slot& ahead = slots_[after_apply_[i + 8]];
+        if (ahead.pending == Pending::kErase) {
+          if (const void* line = index_.HomeLine(KeyIndex<Key>::Tag(ahead.key))) {
+            __builtin_prefetch(line);
+          }
+        }
+      }
+      const uint32_t h = after_apply_[i];
       Slot& slot = slots_[h];
       slot.queued = false;
       if (slot.pending == Pending::kErase) {
