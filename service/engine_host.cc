@@ -229,6 +229,8 @@ class TypedHost final : public EngineHost {
     if (!CheckShape(batch, op, boxes, refuse)) return;
     const bool use32 = boxes.lo32_size() > 0;
     const uint32_t producer = batch.producer();
+    items_.clear();  // nothing of an earlier batch (whose reject callback may have thrown)
+    item_index_.clear();
     // Updates reach the engine in runs through UpdateMany, which overlaps their look-ups. A run
     // ends before an item refused here, so that refusals stay in index order.
     auto flush = [&]() {

@@ -202,6 +202,54 @@ TEST(EngineHost, ThreadsReachTheGridEngines) {
   }
 }
 
+// Updates reach the engine in runs through UpdateMany; a run ends before an item the host refuses
+// itself, so every refusal must come out in index order, with the counts adding up.
+TEST(EngineHost, UpdateRefusalsComeInIndexOrder) {
+  auto host = MakeHost("grid_dense", 3, CoordinateType::kFloat);
+  wire::UpdateBatch load = Batch(1, 3);
+  for (uint64_t id = 1; id <= 40; ++id) {
+    const double x = static_cast<double>(id) * 3;
+    AddBox(load.mutable_inserts(), id, {x, 0, 0}, {x + 1, 1, 1});
+  }
+  ASSERT_TRUE(Apply(*host, load).rejects.empty());
+  std::vector<uint64_t> unc, col;
+  host->Query(&unc, &col);
+  const double nan = std::numeric_limits<double>::quiet_NaN();
+  wire::UpdateBatch batch = Batch(1, 3);
+  std::vector<std::pair<uint32_t, wire::RejectReason>> want;
+  auto add = [&](uint64_t id, double x, wire::RejectReason reason) {
+    if (reason != wire::REJECT_REASON_UNSPECIFIED) {
+      want.emplace_back(static_cast<uint32_t>(batch.updates().ids_size()), reason);
+    }
+    AddBox(batch.mutable_updates(), id, {x, 0, 0}, {x + 1, 1, 1});
+  };
+  add(100, 0, wire::UNKNOWN_ID);
+  add(1, nan, wire::NOT_FINITE);
+  add(101, 0, wire::UNKNOWN_ID);
+  add(2, 9, wire::REJECT_REASON_UNSPECIFIED);  // onto 3 (9.5..10.5 after its update)
+  add(uint64_t{1} << 48, 0, wire::ID_OUT_OF_RANGE);
+  add(102, 0, wire::UNKNOWN_ID);
+  for (uint64_t id = 3; id <= 32; ++id) {  // a run longer than the engine's look-ahead
+    add(id, static_cast<double>(id) * 3 + 0.5, wire::REJECT_REASON_UNSPECIFIED);
+  }
+  add(103, 0, wire::UNKNOWN_ID);
+  add(33, 99.5, wire::REJECT_REASON_UNSPECIFIED);
+  add(1, 102.5, wire::REJECT_REASON_UNSPECIFIED);  // its NaN was refused; onto 34 (102..103)
+  Outcome out = Apply(*host, batch);
+  std::vector<std::pair<uint32_t, wire::RejectReason>> got;
+  for (const Reject& r : out.rejects) {
+    EXPECT_EQ(r.op, wire::OP_UPDATE);
+    got.emplace_back(r.index, r.reason);
+  }
+  EXPECT_EQ(got, want);
+  EXPECT_EQ(out.counts.updates, 33u);
+  EXPECT_EQ(out.counts.rejected, want.size());
+  host->Query(&unc, &col);  // the kept updates applied, the refused ones not
+  EXPECT_TRUE(unc.empty());
+  EXPECT_EQ(col, (std::vector<uint64_t>{GlobalKey(1, 1), GlobalKey(1, 34), GlobalKey(1, 2),
+                                        GlobalKey(1, 3)}));
+}
+
 TEST(EngineHost, UnknownAlgorithmOrDimensionIsRefused) {
   EngineConfig config;
   std::unique_ptr<EngineHost> host;

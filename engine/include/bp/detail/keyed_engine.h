@@ -135,12 +135,15 @@ class KeyedEngine final : public Broadphase<Core::kDim, typename Core::Coord, Ke
   /// the daemon at S1-200k: 24% of its time in Update, nearly all on those two loads). Each
   /// key's hash is computed once, kAhead items ahead, and kept in a ring until its item's turn.
   size_t UpdateMany(std::span<const typename Base::Item> items,
-                    const typename Base::RefusedFn& refused) override {
+                    const typename Base::RefusedFn& refused = nullptr) override {
     constexpr size_t kAhead = 16;
     uint32_t tags[kAhead];
     const size_t n = items.size();
     const size_t first = std::min(n, kAhead);
-    for (size_t i = 0; i < first; ++i) tags[i] = KeyIndex<Key>::Tag(items[i].key);
+    for (size_t i = 0; i < first; ++i) {
+      tags[i] = KeyIndex<Key>::Tag(items[i].key);
+      if (const void* line = index_.HomeLine(tags[i])) __builtin_prefetch(line);
+    }
     size_t count = 0;
     for (size_t i = 0; i < n; ++i) {
       if (i + kAhead / 2 < n) {
