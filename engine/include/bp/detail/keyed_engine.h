@@ -125,8 +125,7 @@ class KeyedEngine final : public Broadphase<Core::kDim, typename Core::Coord, Ke
   }
 
   Status Update(const Key& key, const BoxType& box) override {
-    if (Status s = ValidateBox(box); !s.ok()) return Annotate(s, "update");
-    return UpdateHandle(Find(key), box);
+    return UpdateTagged(key, KeyIndex<Key>::Tag(key), box);
   }
 
   /// As Update per item, with the look-ups of later items started early: the key index's line
@@ -160,15 +159,7 @@ class KeyedEngine final : public Broadphase<Core::kDim, typename Core::Coord, Ke
         tags[i % kAhead] = ahead;
         if (const void* line = index_.HomeLine(ahead)) __builtin_prefetch(line);
       }
-      const Key& key = items[i].key;
-      Status s = ValidateBox(items[i].box);
-      if (s.ok()) {
-        const uint32_t h =
-            index_.Find(key, tag, [this](uint32_t x) -> const Key& { return slots_[x].key; });
-        s = UpdateHandle(h, items[i].box);
-      } else {
-        s = Annotate(s, "update");
-      }
+      const Status s = UpdateTagged(items[i].key, tag, items[i].box);
       if (s.ok()) continue;
       ++count;
       if (refused) refused(i, s);
@@ -375,8 +366,11 @@ class KeyedEngine final : public Broadphase<Core::kDim, typename Core::Coord, Ke
     Pending pending = Pending::kNone;
   };
 
-  // Update of the handle Find gave for a key (kNoHandle: not found), its box validated.
-  Status UpdateHandle(uint32_t h, const BoxType& box) {
+  // Update, with key's KeyIndex tag computed by the caller.
+  Status UpdateTagged(const Key& key, uint32_t tag, const BoxType& box) {
+    if (Status s = ValidateBox(box); !s.ok()) return Annotate(s, "update");
+    const uint32_t h =
+        index_.Find(key, tag, [this](uint32_t x) -> const Key& { return slots_[x].key; });
     if (h == kNoHandle || !Present(slots_[h])) {
       return Status(StatusCode::kNotFound, "update: unknown key");
     }
