@@ -7,6 +7,8 @@
 #include "commands.h"
 #include <CLI/CLI.hpp>
 #include <signal.h>
+#include <spdlog/sinks/stdout_color_sinks.h>
+#include <spdlog/spdlog.h>
 
 #include "bp/workload_scenarios.h"
 
@@ -17,6 +19,9 @@ void OnSignal(int) { bp::bpctl::RequestStop(); }
 }  // namespace
 
 int main(int argc, char** argv) {
+  // Log lines (Cyclone DDS's warnings among them) go to stderr: stdout carries a command's
+  // output (watch's events, check's report), which other programs read line by line.
+  spdlog::set_default_logger(spdlog::stderr_color_mt("bpctl"));
   CLI::App app{
       "bpctl: publish scenes, watch events, record, replay and check update streams of "
       "broadphased"};
