@@ -43,20 +43,21 @@ constexpr Scenario kScenarios[] = {
     {"filtered", 40, 10, 120, 40, 50, true},
 };
 
-template <class Config>
-class DifferentialTest : public ::testing::Test {
+// The driver depends on the shape alone, so that it is compiled once per shape rather than once
+// per engine and shape; the engine comes from a factory.
+template <int K, class T>
+class DifferentialCore : public ::testing::Test {
  protected:
-  static constexpr int K = Config::K;
-  using T = typename Config::T;
   using BoxType = Box<K, T>;
+  using Factory = std::unique_ptr<Broadphase<K, T>> (*)();
 
-  void Run(const Scenario& sc, uint64_t seed) {
-    SCOPED_TRACE(std::string("engine=") + Config::Name() + " scenario=" + sc.name +
-                 " K=" + std::to_string(K) + " seed=" + std::to_string(seed) +
+  void Run(const std::string& engine, Factory create, const Scenario& sc, uint64_t seed) {
+    SCOPED_TRACE("engine=" + engine + " scenario=" + sc.name + " K=" + std::to_string(K) +
+                 " seed=" + std::to_string(seed) +
                  " (replay with BP_TEST_SEED=" + std::to_string(seed) + ")");
     sc_ = &sc;
     rng_.seed(seed);
-    engine_ = Config::Create();
+    engine_ = create();
     model_ = {};
     next_key_ = 1;
     erased_keys_.clear();
@@ -320,6 +321,14 @@ class DifferentialTest : public ::testing::Test {
   ModelOracle<K, T> model_;
   uint64_t next_key_ = 1;
   std::vector<uint64_t> erased_keys_;
+};
+
+template <class Config>
+class DifferentialTest : public DifferentialCore<Config::K, typename Config::T> {
+ protected:
+  void Run(const Scenario& sc, uint64_t seed) {
+    DifferentialCore<Config::K, typename Config::T>::Run(Config::Name(), &Config::Create, sc, seed);
+  }
 };
 
 template <class Make>

@@ -106,16 +106,66 @@ struct EngineConfig {
   static std::string Name() { return Make::Name(); }
 };
 
+// The engines are built out of line (test_engines_*.cc, one explicit instantiation per shape), so
+// that a test which sees them only as Broadphase<K, T> does not compile every engine again: under
+// ASan the typed suites took half an hour to build when each of them did.
+enum class CellKind { kSegmented, kBatch, kDense, kDensePortable };
+
+/// A grid for the tests: its cell type, cell size (0: automatic), the most cells an object may
+/// span before it is kept as a large object, and the pool's threads.
+struct GridSpec {
+  CellKind cell = CellKind::kSegmented;
+  double cell_size = 0;
+  uint32_t max_cells = 16;
+  unsigned threads = 1;
+};
+
+/// A grid's options from a spec (any of the grids' option structs).
+template <class Options>
+Options GridOptionsOf(const GridSpec& spec) {
+  Options options;
+  options.cell_size = spec.cell_size;
+  options.max_cells_per_object = spec.max_cells;
+  options.threads = spec.threads;
+  options.parallel_routing_from = 2;  // the tests' queries are small
+  return options;
+}
+
+template <int K, class T>
+std::unique_ptr<Broadphase<K, T>> NewBruteForce();
+template <int K, class T>
+std::unique_ptr<Broadphase<K, T>> NewSegmentedSap(const SegmentedSapOptions& options);
+template <int K, class T>
+std::unique_ptr<Broadphase<K, T>> NewBatchSap(const BatchSapOptions& options);
+template <int K, class T>
+std::unique_ptr<Broadphase<K, T>> NewDynamicOctree(const DynamicOctreeOptions& options);
+/// Segmented and batch cells (test_engines_grid.cc).
+template <int K, class T>
+std::unique_ptr<Broadphase<K, T>> NewSapCellGrid(const GridSpec& spec);
+/// Dense cells, AVX-512 or portable (test_engines_dense.cc).
+template <int K, class T>
+std::unique_ptr<Broadphase<K, T>> NewDenseGrid(const GridSpec& spec);
+
+template <int K, class T>
+std::unique_ptr<Broadphase<K, T>> NewGrid(const GridSpec& spec) {
+  return spec.cell == CellKind::kDense || spec.cell == CellKind::kDensePortable
+             ? NewDenseGrid<K, T>(spec)
+             : NewSapCellGrid<K, T>(spec);
+}
+
+/// The shapes the typed suites run: 2-D and 3-D; float, double and int32 coordinates; and 3-D
+/// uint32 (the edge cases' unsigned coordinates).
+#define BP_TEST_FOR_EACH_SHAPE(X) \
+  X(2, float) X(3, float) X(2, double) X(3, double) X(2, int32_t) X(3, int32_t) X(3, uint32_t)
+
 struct MakeBruteForce {
   template <int K, class T>
   static std::unique_ptr<Broadphase<K, T>> Create() {
-    return std::make_unique<BruteForce<K, T>>();
+    return NewBruteForce<K, T>();
   }
   static std::string Name() { return "BruteForce"; }
 };
 
-/// SegmentedSap with the given chunk capacity, global-sort fraction (percent; -1: never),
-/// bulk-load minimum (0: never) and presorted minimum (0: never; 1: every insert and erase).
 template <uint32_t kCapacity, int kGlobalPercent, uint32_t kBulkMin = 64,
           uint32_t kPresortedMin = SegmentedSapOptions{}.presorted_min>
 struct MakeSegmentedSap {
@@ -126,7 +176,7 @@ struct MakeSegmentedSap {
     options.global_sort_fraction = kGlobalPercent < 0 ? 1e300 : kGlobalPercent / 100.0;
     options.bulk_load_min = kBulkMin;
     options.presorted_min = kPresortedMin;
-    return std::make_unique<SegmentedSap<K, T>>(options);
+    return NewSegmentedSap<K, T>(options);
   }
   static std::string Name() {
     return "SegmentedSap_c" + std::to_string(kCapacity) + "_g" + std::to_string(kGlobalPercent) +
@@ -134,51 +184,22 @@ struct MakeSegmentedSap {
   }
 };
 
-/// BatchSap with the given global-sort fraction (percent; -1: never, so queries without inserts
-/// or erases always sort per moved object).
 template <int kGlobalPercent>
 struct MakeBatchSap {
   template <int K, class T>
   static std::unique_ptr<Broadphase<K, T>> Create() {
     BatchSapOptions options;
     options.global_sort_fraction = kGlobalPercent < 0 ? 1e300 : kGlobalPercent / 100.0;
-    return std::make_unique<BatchSap<K, T>>(options);
+    return NewBatchSap<K, T>(options);
   }
   static std::string Name() { return "BatchSap_g" + std::to_string(kGlobalPercent); }
 };
 
-/// The cell type of a test grid.
-/// The cell type of a test grid (kDensePortable: dense cells forced onto the portable kernel, so
-/// that a CPU with AVX-512 checks both kernels).
-enum class CellKind { kSegmented, kBatch, kDense, kDensePortable };
-
-/// A grid over SegmentedSap, BatchSap or dense cells with cell size kCellTenths / 10 (0:
-/// automatic), at most kMaxCells cells per object before it counts as large, and kThreads
-/// threads applying the cells.
 template <CellKind kCell, int kCellTenths, uint32_t kMaxCells = 16, unsigned kThreads = 1>
 struct MakeGrid {
   template <int K, class T>
   static std::unique_ptr<Broadphase<K, T>> Create() {
-    auto set = [](auto& options) {
-      options.cell_size = kCellTenths / 10.0;
-      options.max_cells_per_object = kMaxCells;
-      options.threads = kThreads;
-      options.parallel_routing_from = 2;  // the tests' queries are small
-    };
-    if constexpr (kCell == CellKind::kBatch) {
-      GridBatchSapOptions options;
-      set(options);
-      return std::make_unique<GridBatchSap<K, T>>(options);
-    } else if constexpr (kCell == CellKind::kDense || kCell == CellKind::kDensePortable) {
-      GridDenseOptions options;
-      set(options);
-      options.cell.wide_kernel = kCell == CellKind::kDense;
-      return std::make_unique<GridDense<K, T>>(options);
-    } else {
-      GridSegmentedSapOptions options;
-      set(options);
-      return std::make_unique<GridSegmentedSap<K, T>>(options);
-    }
+    return NewGrid<K, T>(GridSpec{kCell, kCellTenths / 10.0, kMaxCells, kThreads});
   }
   static std::string Name() {
     const char* kind = kCell == CellKind::kBatch           ? "GridBatchSap"
@@ -198,7 +219,7 @@ struct MakeDynamicOctree {
     DynamicOctreeOptions options;
     if (kCapacity != 0) options.max_objects_per_node = kCapacity;
     if (kMaxDepth != 0) options.max_depth = kMaxDepth;
-    return std::make_unique<DynamicOctree<K, T>>(options);
+    return NewDynamicOctree<K, T>(options);
   }
   static std::string Name() {
     return "DynamicOctree_c" + std::to_string(kCapacity) + "_d" + std::to_string(kMaxDepth);

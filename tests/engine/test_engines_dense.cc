@@ -1,0 +1,19 @@
+// Grids of dense cells (AVX-512 kernel where the CPU has it, or the portable one) for
+// test_support.h, built once per shape.
+#include "test_support.h"
+
+namespace bp::test {
+
+template <int K, class T>
+std::unique_ptr<Broadphase<K, T>> NewDenseGrid(const GridSpec& spec) {
+  auto options = GridOptionsOf<GridDenseOptions>(spec);
+  options.cell.wide_kernel = spec.cell == CellKind::kDense;
+  return std::make_unique<GridDense<K, T>>(options);
+}
+
+#define BP_INSTANTIATE(K, T) \
+  template std::unique_ptr<Broadphase<K, T>> NewDenseGrid<K, T>(const GridSpec&);
+BP_TEST_FOR_EACH_SHAPE(BP_INSTANTIATE)
+#undef BP_INSTANTIATE
+
+}  // namespace bp::test
