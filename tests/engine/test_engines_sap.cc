@@ -26,6 +26,7 @@ std::unique_ptr<Broadphase<K, T>> NewDynamicOctree(const DynamicOctreeOptions& o
   template std::unique_ptr<Broadphase<K, T>> NewBatchSap<K, T>(const BatchSapOptions&);         \
   template std::unique_ptr<Broadphase<K, T>> NewDynamicOctree<K, T>(const DynamicOctreeOptions&);
 BP_TEST_FOR_EACH_SHAPE(BP_INSTANTIATE)
+BP_INSTANTIATE(3, uint32_t)
 #undef BP_INSTANTIATE
 
 }  // namespace bp::test

@@ -30,7 +30,7 @@ printf 'logging:\n  summary_interval_s: 0.5\n' >>daemon.yaml  # status reports t
 DAEMON_PID=$!
 
 # Watchers first (they wait for the daemon), then the publishers.
-"$BPCTL" -c watcher.yaml --wait 10 watch --seconds 12 >watcher.out 2>watcher.err &
+"$BPCTL" -c watcher.yaml --wait 10 watch --seconds 16 >watcher.out 2>watcher.err &
 W1=$!
 "$BPCTL" -c intruder.yaml --wait 10 watch --seconds 12 >intruder_watch.out 2>intruder_watch.err &
 W2=$!
@@ -85,7 +85,7 @@ check "  and rejected nothing" grep -q "0 rejected items" daemon.log
 if ((failures > 0)); then
   echo "----- watcher.out: lines other than producer 1's events"
   grep -vE '^[0-9]+ [a-z]+ 1:[0-9]+ 1:[0-9]+$' watcher.out | head -n 15
-  for f in daemon.log watcher.err intruder_watch.err plain_watch.err intruder_scene.log \
+  for f in daemon.log watcher.err intruder_watch.out intruder_watch.err plain_watch.err intruder_scene.log \
            plain_scene.log producer.log world2.log auditor_watch.out auditor_status.out; do
     echo "----- $f"; tail -n 15 "$f"
   done
