@@ -23,6 +23,7 @@
 #include <string>
 #include <vector>
 
+#include "engines.h"
 #include "peer.h"
 #include <CLI/CLI.hpp>
 #include <sys/resource.h>
@@ -161,28 +162,15 @@ bp::DynamicOctreeOptions OctreeOptions(const Config& cfg) {
 // The engine of cfg; margin is in the engine's units (the scene's cube width is 1).
 template <int K, class T>
 std::unique_ptr<bp::Broadphase<K, T>> MakeEngine(const Config& cfg, T margin) {
-  if (cfg.engine == "brute_force") {
-    return std::make_unique<bp::BruteForce<K, T>>(bp::BruteForceOptions(), margin);
-  }
-  if (cfg.engine == "dynamic_octree") {
-    return std::make_unique<bp::DynamicOctree<K, T>>(OctreeOptions(cfg), margin);
-  }
-  if (cfg.engine == "batch_sap") {
-    return std::make_unique<bp::BatchSap<K, T>>(BatchOptions(cfg), margin);
-  }
-  if (cfg.engine == "grid_segmented_sap") {
-    return std::make_unique<bp::GridSegmentedSap<K, T>>(
-        MakeGridOptions<bp::GridSegmentedSapOptions>(cfg, SapOptions(cfg)), margin);
-  }
-  if (cfg.engine == "grid_batch_sap") {
-    return std::make_unique<bp::GridBatchSap<K, T>>(
-        MakeGridOptions<bp::GridBatchSapOptions>(cfg, BatchOptions(cfg)), margin);
-  }
-  if (cfg.engine == "grid_dense") {
-    return std::make_unique<bp::GridDense<K, T>>(
-        MakeGridOptions<bp::GridDenseOptions>(cfg, DenseOptions(cfg)), margin);
-  }
-  return std::make_unique<bp::SegmentedSap<K, T>>(SapOptions(cfg), margin);
+  bp::bench::EngineChoice choice;
+  choice.engine = cfg.engine;
+  choice.sap = SapOptions(cfg);
+  choice.batch = BatchOptions(cfg);
+  choice.octree = OctreeOptions(cfg);
+  choice.grid_sap = MakeGridOptions<bp::GridSegmentedSapOptions>(cfg, SapOptions(cfg));
+  choice.grid_batch = MakeGridOptions<bp::GridBatchSapOptions>(cfg, BatchOptions(cfg));
+  choice.grid_dense = MakeGridOptions<bp::GridDenseOptions>(cfg, DenseOptions(cfg));
+  return bp::bench::NewEngine<K, T>(choice, margin);
 }
 
 // The engine's overlap set as sorted pair keys.
