@@ -339,7 +339,8 @@ void PrintJson(const std::string& scenario, const SceneParams& p, int frames, co
   }
   if (cfg.engine == "grid_dense") {
     const bool wide = cfg.kernel != "portable" && bp::detail::CpuHasAvx512();
-    o << ",\"kernel\":\"" << (wide ? "avx512" : "portable") << "\"";
+    o << ",\"kernel\":\"" << (wide ? "avx512" : "portable") << "\""
+      << ",\"cell_slots\":" << r.last.cell_slots;
   }
   if (cfg.engine == "segmented_sap" || cfg.engine == "grid_segmented_sap") {
     o << ",\"chunk\":" << cfg.chunk << ",\"presorted_min\":" << cfg.presorted_min;

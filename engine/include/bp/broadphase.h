@@ -57,6 +57,7 @@ struct Stats {
   size_t cells = 0;          ///< cells in use (grid only)
   size_t cells_queried = 0;  ///< cells the last query applied operations to (grid only)
   size_t large_objects = 0;  ///< objects kept out of the cells for their size (grid only)
+  size_t cell_slots = 0;     ///< slots the cells hold, live or free (grid of dense cells only)
   double cell_size = 0;      ///< the grid's cell edge (grid only)
   size_t threads = 1;        ///< threads that may apply the cells (grid only: its pool)
   size_t worker_cells = 0;   ///< cells of the last query applied by the pool's other threads

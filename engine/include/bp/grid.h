@@ -166,11 +166,13 @@ class GridCore {
     out->worker_cells = pool_ != nullptr ? pool_->last_on_workers() : 0;
     out->pool_routed = pool_routed_;
     out->chunks = 0;
+    out->cell_slots = 0;
     for (const auto& c : cells_) {
       if (!c->in_use) continue;
       Stats s;
       c->core.FillStats(&s);
       out->chunks += s.chunks;
+      if constexpr (requires { c->core.slots(); }) out->cell_slots += c->core.slots();
     }
   }
 
@@ -854,6 +856,36 @@ class GridCore {
       cell.global.clear();
       cell.free_local.clear();
       cell.large.clear();
+    } else {
+      CompactCell(idx, cell);
+    }
+  }
+
+  // Lets a cell type that can give back free slots (dense cells) do so: each object it moves
+  // gets its new local handle in the cell's table and in its own reference to the cell. Runs on
+  // the thread applying the cell: it writes only this cell and the CellRef entries that name it
+  // (one per object, so no other cell's thread writes them).
+  void CompactCell(uint32_t idx, GridCell& cell) {
+    if constexpr (requires { cell.core.slots(); }) {
+      bool moved_any = false;
+      cell.core.Compact([&](uint32_t from, uint32_t to) {
+        const uint32_t h = cell.global[from];
+        cell.global[to] = h;
+        cell.global[from] = kNone;
+        const Object& o = objects_[h];
+        CellRef* ref = &refs_[o.refs];
+        while (ref->cell != idx) ++ref;
+        BP_ASSERT(ref->local == from);
+        ref->local = to;
+        moved_any = true;
+      });
+      const uint32_t slots = cell.core.slots();
+      if (!moved_any && cell.global.size() <= slots) return;
+      if (cell.global.size() > slots) cell.global.resize(slots);
+      cell.free_local.clear();
+      for (uint32_t l = static_cast<uint32_t>(cell.global.size()); l-- > 0;) {
+        if (cell.global[l] == kNone) cell.free_local.push_back(l);
+      }
     }
   }
 

@@ -76,6 +76,21 @@ Status GridCore<Cell>::Validate() const {
     if (members != c.members || members != c.core.live() || members == 0) {
       return fail("cell members differ");
     }
+    // The free locals are exactly the unused ones, each once; a dense cell holds a live slot
+    // exactly where the table names an object (its compaction moves both together).
+    std::vector<bool> free_seen(c.global.size(), false);
+    for (uint32_t l : c.free_local) {
+      if (l >= c.global.size() || c.global[l] != kNone || free_seen[l]) {
+        return fail("cell's free locals");
+      }
+      free_seen[l] = true;
+    }
+    if (c.free_local.size() + members != c.global.size()) return fail("cell's free locals");
+    if constexpr (requires { c.core.slots(); }) {
+      for (uint32_t l = 0; l < c.global.size(); ++l) {
+        if (c.core.holds(l) != (c.global[l] != kNone)) return fail("cell slot and table differ");
+      }
+    }
     if (cell_work_[idx].touched || cell_work_[idx].updates != 0 || !c.erases.empty() ||
         !c.inserts.empty()) {
       return fail("cell left with buffered operations");
