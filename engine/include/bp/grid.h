@@ -226,10 +226,8 @@ class GridCore {
     uint64_t key = 0;
     std::vector<uint32_t> global;      // local handle -> global handle (kNone: free)
     std::vector<uint32_t> free_local;  // reusable local handles
-    std::vector<uint32_t> erases;      // buffered operations, by local handle (updates: routed_)
-    std::vector<HandleBox<kDim, Coord>> inserts;
-    std::vector<uint32_t> large;  // large objects whose range covers this cell
-    uint32_t members = 0;         // live objects once the buffered operations are applied
+    std::vector<uint32_t> large;       // large objects whose range covers this cell
+    uint32_t members = 0;              // live objects once the buffered operations are applied
     bool in_use = false;
   };
   struct Large {
@@ -545,9 +543,8 @@ class GridCore {
         ref.cell = CellAt(c);
         GridCell& cell = *cells_[ref.cell];
         ref.local = AllocLocal(cell, h);
-        PushBox(cell.inserts, ref.local, box);
         ++cell.members;
-        Touch(ref.cell);
+        RouteInsert(ref, box);
       }
       refs_[refs + i++] = ref;
     });
@@ -555,10 +552,8 @@ class GridCore {
     Space::ForEachCoord(o.lo, o.hi, [&](const CellCoord& c) {
       CellRef ref = refs_[o.refs + j++];
       if (Space::Contains(lo, hi, c)) return;
-      GridCell& cell = *cells_[ref.cell];
-      cell.erases.push_back(ref.local);
-      --cell.members;
-      Touch(ref.cell);
+      --cells_[ref.cell]->members;
+      RouteErase(ref);
     });
     FreeRefs(o.refs, o.nrefs);
     o.lo = lo;
@@ -574,11 +569,10 @@ class GridCore {
     Space::ForEachCoord(lo, hi, [&](const CellCoord& c) {
       uint32_t idx = CellAt(c);
       GridCell& cell = *cells_[idx];
-      uint32_t local = AllocLocal(cell, h);
-      PushBox(cell.inserts, local, objects_[h].box);
+      const CellRef ref{idx, AllocLocal(cell, h)};
       ++cell.members;
-      Touch(idx);
-      refs_[refs + i++] = CellRef{idx, local};
+      RouteInsert(ref, objects_[h].box);
+      refs_[refs + i++] = ref;
     });
     Object& o = objects_[h];
     o.lo = lo;
@@ -591,11 +585,9 @@ class GridCore {
   void LeaveCells(uint32_t h) {
     Object& o = objects_[h];
     for (uint32_t i = 0; i < o.nrefs; ++i) {
-      CellRef ref = refs_[o.refs + i];
-      GridCell& cell = *cells_[ref.cell];
-      cell.erases.push_back(ref.local);
-      --cell.members;
-      Touch(ref.cell);
+      const CellRef ref = refs_[o.refs + i];
+      --cells_[ref.cell]->members;
+      RouteErase(ref);
     }
     FreeRefs(o.refs, o.nrefs);
     o.nrefs = 0;
@@ -744,6 +736,19 @@ class GridCore {
     ++cell_work_[ref.cell].updates;
     Touch(ref.cell);
   }
+  // Inserts and erases of cell slots are buffered like updates, in query-wide arrays grouped by
+  // cell before the cells are applied: per-cell vectors cost a miss on each first push and
+  // again on each cell's first read (perf: half of the dense cell's Apply samples).
+  void RouteInsert(CellRef ref, const BoxType& box) {
+    PushRouted(routed_inserts_, ref, box);
+    ++cell_work_[ref.cell].inserts;
+    Touch(ref.cell);
+  }
+  void RouteErase(CellRef ref) {
+    routed_erases_.push_back(ref);
+    ++cell_work_[ref.cell].erases;
+    Touch(ref.cell);
+  }
   // Appends {cell, local, box} to v, written in place (see PushBox).
   static void PushRouted(std::vector<Routed>& v, CellRef ref, const BoxType& box) {
     Routed& r = v.emplace_back();
@@ -752,26 +757,46 @@ class GridCore {
     r.update.box = box;
   }
 
-  // routed_ grouped by cell into grouped_, in the order of touched_: each touched cell's
-  // updates become one contiguous run (begin: its offset), in routing order within it.
-  // Shards (parallel routing) come first, in run order, then the serially routed updates.
+  // The routed operations grouped by cell, in the order of touched_: each touched cell's
+  // updates, erases and inserts become one contiguous run each in grouped_, grouped_erases_ and
+  // grouped_inserts_ (starting at begin, erase_begin, insert_begin), in routing order within
+  // it. Updates of the shards (parallel routing) come first, in run order, then the serially
+  // routed ones.
   void GroupUpdates() {
-    uint32_t offset = 0;
+    uint32_t offset = 0, erase_offset = 0, insert_offset = 0;
     for (uint32_t idx : touched_) {
       CellWork& work = cell_work_[idx];
       work.begin = offset;
-      work.end = offset;
+      work.erase_begin = erase_offset;
+      work.insert_begin = insert_offset;
       offset += work.updates;
+      erase_offset += work.erases;
+      insert_offset += work.inserts;
     }
     grouped_.resize(offset);
+    grouped_erases_.resize(erase_offset);
+    grouped_inserts_.resize(insert_offset);
+    // The begin fields serve as write cursors, and are set back after.
     for (Shard& sh : shards_) {
-      for (const Routed& r : sh.routed) grouped_[cell_work_[r.cell].end++] = r.update;
+      for (const Routed& r : sh.routed) grouped_[cell_work_[r.cell].begin++] = r.update;
       for (uint32_t idx : sh.touched) sh.counts[idx] = 0;
       sh.routed.clear();
       sh.touched.clear();
     }
-    for (const Routed& r : routed_) grouped_[cell_work_[r.cell].end++] = r.update;
+    for (const Routed& r : routed_) grouped_[cell_work_[r.cell].begin++] = r.update;
+    for (const CellRef& r : routed_erases_)
+      grouped_erases_[cell_work_[r.cell].erase_begin++] = r.local;
+    for (const Routed& r : routed_inserts_)
+      grouped_inserts_[cell_work_[r.cell].insert_begin++] = r.update;
+    for (uint32_t idx : touched_) {
+      CellWork& work = cell_work_[idx];
+      work.begin -= work.updates;
+      work.erase_begin -= work.erases;
+      work.insert_begin -= work.inserts;
+    }
     routed_.clear();
+    routed_erases_.clear();
+    routed_inserts_.clear();
   }
 
   // Applies every touched cell's buffered operations (in parallel: cells share nothing), then
@@ -828,8 +853,9 @@ class GridCore {
     const uint32_t idx = touched_[i];
     GridCell& cell = *cells_[idx];
     const CellWork& work = cell_work_[idx];
-    cell.core.Apply(cell.erases, std::span(grouped_.data() + work.begin, work.updates),
-                    cell.inserts);
+    const std::span<const uint32_t> erases(grouped_erases_.data() + work.erase_begin, work.erases);
+    cell.core.Apply(erases, std::span(grouped_.data() + work.begin, work.updates),
+                    std::span(grouped_inserts_.data() + work.insert_begin, work.inserts));
     Stats s;
     cell.core.FillStats(&s);
     std::vector<Witnessed>& out = witnessed_[thread];
@@ -843,12 +869,10 @@ class GridCore {
       out.push_back(Witnessed{cell.global[a], cell.global[b], now});
     });
     co.count = static_cast<uint32_t>(out.size()) - co.begin;
-    for (uint32_t local : cell.erases) {
+    for (uint32_t local : erases) {
       cell.global[local] = kNone;
       cell.free_local.push_back(local);
     }
-    cell.erases.clear();
-    cell.inserts.clear();
     cell_work_[idx] = CellWork{};
     co.emptied = cell.members == 0;
     if (co.emptied) {
@@ -1170,11 +1194,16 @@ class GridCore {
   std::vector<Routed> routed_;
   std::vector<Shard> shards_;
   std::vector<HandleBox<kDim, Coord>> grouped_;
-  // Per cell index, this query's work: touched (in touched_), updates routed to it, and its
-  // run [begin, end) in grouped_. Kept apart from the cells so that routing reads 12 bytes.
+  std::vector<CellRef> routed_erases_;  // this query's erases of cell slots, as routed
+  std::vector<Routed> routed_inserts_;  // and its inserts
+  std::vector<uint32_t> grouped_erases_;
+  std::vector<HandleBox<kDim, Coord>> grouped_inserts_;
+  // Per cell index, this query's work: touched (in touched_), the updates, erases and inserts
+  // routed to it, and where their runs start in grouped_, grouped_erases_ and grouped_inserts_.
+  // Kept apart from the cells so that routing reads a few bytes.
   struct CellWork {
-    uint32_t updates = 0;
-    uint32_t begin = 0, end = 0;
+    uint32_t updates = 0, erases = 0, inserts = 0;
+    uint32_t begin = 0, erase_begin = 0, insert_begin = 0;
     bool touched = false;
   };
   std::vector<CellWork> cell_work_;

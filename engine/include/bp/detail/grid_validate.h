@@ -51,7 +51,8 @@ Status GridCore<Cell>::Validate() const {
   }
   if (live.size() != live_) return fail("live count differs");
   if (large_live != large_count_) return fail("large count differs");
-  if (!touched_.empty() || !changed_large_.empty() || !routed_.empty()) {
+  if (!touched_.empty() || !changed_large_.empty() || !routed_.empty() || !routed_erases_.empty() ||
+      !routed_inserts_.empty()) {
     return fail("work left after a query");
   }
   for (const Shard& sh : shards_) {
@@ -91,8 +92,8 @@ Status GridCore<Cell>::Validate() const {
         if (c.core.holds(l) != (c.global[l] != kNone)) return fail("cell slot and table differ");
       }
     }
-    if (cell_work_[idx].touched || cell_work_[idx].updates != 0 || !c.erases.empty() ||
-        !c.inserts.empty()) {
+    if (cell_work_[idx].touched || cell_work_[idx].updates != 0 || cell_work_[idx].erases != 0 ||
+        cell_work_[idx].inserts != 0) {
       return fail("cell left with buffered operations");
     }
     for (uint32_t l = 0; l < large_.size(); ++l) {
