@@ -891,7 +891,7 @@ class GridCore {
   // (one per object, so no other cell's thread writes them).
   void CompactCell(uint32_t idx, GridCell& cell) {
     if constexpr (requires { cell.core.slots(); }) {
-      bool moved_any = false;
+      const uint32_t before = cell.core.slots();
       cell.core.Compact([&](uint32_t from, uint32_t to) {
         const uint32_t h = cell.global[from];
         cell.global[to] = h;
@@ -901,10 +901,9 @@ class GridCore {
         while (ref->cell != idx) ++ref;
         BP_ASSERT(ref->local == from);
         ref->local = to;
-        moved_any = true;
       });
       const uint32_t slots = cell.core.slots();
-      if (!moved_any && cell.global.size() <= slots) return;
+      if (slots == before) return;  // nothing given back, nothing moved
       if (cell.global.size() > slots) cell.global.resize(slots);
       cell.free_local.clear();
       for (uint32_t l = static_cast<uint32_t>(cell.global.size()); l-- > 0;) {
