@@ -4,6 +4,7 @@
 #include <cmath>
 #include <thread>
 
+#include "kept_objects.h"
 #include <time.h>
 
 namespace bp::client {
@@ -16,6 +17,11 @@ void CopyCorner(const R& values, size_t at, uint32_t dim, std::array<double, 6>*
 }
 
 }  // namespace
+
+UpdatePublisher::UpdatePublisher() : kept_(std::make_unique<KeptObjects>()) {}
+UpdatePublisher::~UpdatePublisher() = default;
+
+size_t UpdatePublisher::kept_objects() const { return kept_->size(); }
 
 uint64_t WallClockNs() {
   timespec ts{};
@@ -106,13 +112,14 @@ Status UpdatePublisher::PublishRaw(std::string_view payload) {
 }
 
 void UpdatePublisher::Keep(const wire::UpdateBatch& batch) {
+  using Record = KeptObjects::Record;
   // The daemon's order: erases, inserts, updates.
-  for (uint64_t id : batch.erases()) kept_.erase(id);
+  for (uint64_t id : batch.erases()) kept_->Erase(id);
   if (batch.dim() >= 1 && batch.dim() <= 6) dim_ = batch.dim();
   frame_ = batch.frame();
   const uint32_t k = dim_;
-  auto corners = [&](const wire::BoxArray& boxes, int i, Kept* kept) {
-    const size_t at = static_cast<size_t>(i) * k;
+  auto corners = [&](const wire::BoxArray& boxes, size_t i, Record* kept) {
+    const size_t at = i * k;
     if (boxes.lo32_size() > 0) {
       if (static_cast<size_t>(boxes.lo32_size()) < at + k ||
           static_cast<size_t>(boxes.hi32_size()) < at + k) {
@@ -140,23 +147,24 @@ void UpdatePublisher::Keep(const wire::UpdateBatch& batch) {
   for (int i = 0; i < inserts.ids_size(); ++i) {
     // An insert of an id still kept (this batch's erases are already applied) is refused as a
     // duplicate.
-    if (kept_.contains(inserts.ids(i))) continue;
-    Kept kept;
-    if (!corners(inserts, i, &kept)) continue;  // refused by the daemon too
+    if (kept_->Contains(inserts.ids(i))) continue;
+    Record kept;
+    kept.id = inserts.ids(i);
+    if (!corners(inserts, static_cast<size_t>(i), &kept)) continue;  // refused by the daemon too
     if (inserts.static_flags_size() > i) kept.is_static = inserts.static_flags(i);
     if (inserts.category_size() > i) kept.category = inserts.category(i);
     if (inserts.mask_size() > i) kept.mask = inserts.mask(i);
     kept.has_attributes =
         inserts.static_flags_size() > 0 || inserts.category_size() > 0 || inserts.mask_size() > 0;
-    kept_[inserts.ids(i)] = kept;
+    kept_->Insert(kept);
   }
   const wire::BoxArray& updates = batch.updates();
-  for (int i = 0; i < updates.ids_size(); ++i) {
-    auto it = kept_.find(updates.ids(i));
-    if (it == kept_.end()) continue;  // unknown to us: the daemon refuses it too
-    Kept moved = it->second;
-    if (corners(updates, i, &moved)) it->second = moved;
-  }
+  kept_->ForEachFound({updates.ids().data(), static_cast<size_t>(updates.ids_size())},
+                      [&](size_t i, Record* kept) {
+                        if (kept == nullptr) return;  // unknown to us: the daemon refuses it too
+                        Record moved = *kept;
+                        if (corners(updates, i, &moved)) *kept = moved;
+                      });
 }
 
 Status UpdatePublisher::Maintain() {
@@ -237,7 +245,7 @@ Status UpdatePublisher::Restate() {
   }
   const uint64_t run = seq_ + 1;  // the batch_seq of the run's first batch
   answered_upto_ = status_seq_;
-  auto it = kept_.begin();
+  size_t next = 0;  // the next kept record to restate
   do {  // at least one batch: an empty restate erases what the daemon still holds of ours
     restate_batch_.Clear();
     restate_batch_.set_restate(true);
@@ -246,25 +254,27 @@ Status UpdatePublisher::Restate() {
     restate_batch_.set_frame(frame_);
     wire::BoxArray* inserts = restate_batch_.mutable_inserts();
     bool attributes = false;
-    const auto from = it;
-    for (uint64_t n = 0; n < items && it != kept_.end(); ++n, ++it) {
-      inserts->add_ids(it->first);
-      for (uint32_t a = 0; a < k; ++a) inserts->add_lo64(it->second.lo[a]);
-      for (uint32_t a = 0; a < k; ++a) inserts->add_hi64(it->second.hi[a]);
-      attributes = attributes || it->second.has_attributes;
+    const size_t from = next;
+    for (uint64_t n = 0; n < items && next < kept_->size(); ++n, ++next) {
+      const KeptObjects::Record& kept = kept_->at(next);
+      inserts->add_ids(kept.id);
+      for (uint32_t a = 0; a < k; ++a) inserts->add_lo64(kept.lo[a]);
+      for (uint32_t a = 0; a < k; ++a) inserts->add_hi64(kept.hi[a]);
+      attributes = attributes || kept.has_attributes;
     }
     if (attributes) {  // every attribute array is empty or complete
-      for (auto j = from; j != it; ++j) {
-        inserts->add_static_flags(j->second.is_static);
-        inserts->add_category(j->second.category);
-        inserts->add_mask(j->second.mask);
+      for (size_t j = from; j != next; ++j) {
+        const KeptObjects::Record& kept = kept_->at(j);
+        inserts->add_static_flags(kept.is_static);
+        inserts->add_category(kept.category);
+        inserts->add_mask(kept.mask);
       }
     }
     // The last one closes a frame, so the restored objects' pairs are published even when
     // the producer rests (Maintain) and no other batch follows.
-    restate_batch_.set_end_of_frame(it == kept_.end());
+    restate_batch_.set_end_of_frame(next == kept_->size());
     if (Status s = Stamp(&restate_batch_); !s.ok()) return s;  // due again next time
-  } while (it != kept_.end());
+  } while (next < kept_->size());
   restate_due_ = false;
   ++restates_;
   return Status::Ok();

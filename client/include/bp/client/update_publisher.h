@@ -27,13 +27,11 @@
 // Thread safety: one thread at a time per publisher.
 #pragma once
 
-#include <array>
 #include <chrono>
 #include <cstdint>
 #include <memory>
 #include <string>
 #include <string_view>
-#include <unordered_map>
 #include <vector>
 
 #include "broadphase.pb.h"
@@ -57,8 +55,11 @@ struct PublisherOptions {
   uint32_t restate_batch_items = 65536;
 };
 
+class KeptObjects;
+
 class UpdatePublisher {
  public:
+  ~UpdatePublisher();
   /// A publisher for producer id (1..65535) on connection (which must outlive it).
   static Status Create(Connection& connection, uint32_t producer, const PublisherOptions& options,
                        std::unique_ptr<UpdatePublisher>* out);
@@ -88,22 +89,14 @@ class UpdatePublisher {
   /// Batches published so far (restate batches included).
   uint64_t published() const { return seq_; }
   /// Objects kept for restating (0 without restate_on_restart).
-  size_t kept_objects() const { return kept_.size(); }
+  size_t kept_objects() const;
   /// Restates sent so far.
   uint64_t restates() const { return restates_; }
   /// The epoch of the daemon last seen (0: none yet, or restate_on_restart is off).
   uint64_t daemon_epoch() const { return epoch_; }
 
  private:
-  struct Kept {
-    std::array<double, 6> lo{};  // K values used
-    std::array<double, 6> hi{};
-    bool has_attributes = false;
-    bool is_static = false;
-    uint64_t category = 1;
-    uint64_t mask = ~uint64_t{0};
-  };
-  UpdatePublisher() = default;
+  UpdatePublisher();
   Status Stamp(wire::UpdateBatch* batch);
   void Keep(const wire::UpdateBatch& batch);
   Status Restate();
@@ -116,7 +109,7 @@ class UpdatePublisher {
   uint64_t seq_ = 0;
   std::string buffer_;
   // Restating.
-  std::unordered_map<uint64_t, Kept> kept_;
+  std::unique_ptr<KeptObjects> kept_;  // always allocated; empty without restate_on_restart
   uint32_t dim_ = 0;
   uint64_t frame_ = 0;
   uint64_t epoch_ = 0;
