@@ -83,22 +83,33 @@ class TypedHost final : public EngineHost {
       reject(Reject{op, index, id, reason, ItemName(op, index, id) + ": " + why});
     };
 
+    // Erases reach the engine in runs through EraseMany, as updates do through UpdateMany.
+    keys_.clear();
+    item_index_.clear();
+    auto flush_erases = [&]() {
+      if (keys_.empty()) return;
+      const size_t refused = engine_->EraseMany(keys_, [&](size_t k, const Status&) {
+        const uint32_t index = item_index_[k];
+        refuse(wire::OP_ERASE, index, batch.erases(static_cast<int>(index)), wire::UNKNOWN_ID,
+               "no such object of producer " + std::to_string(producer));
+      });
+      objects_ -= keys_.size() - refused;
+      out->erases += keys_.size() - refused;
+      keys_.clear();
+      item_index_.clear();
+    };
     for (int i = 0; i < batch.erases_size(); ++i) {
       const uint32_t index = static_cast<uint32_t>(i);
       const uint64_t id = batch.erases(i);
       if (id >= kLocalIdLimit) {
+        flush_erases();  // refusals stay in index order
         refuse(wire::OP_ERASE, index, id, wire::ID_OUT_OF_RANGE, "ids must be below 2^48");
         continue;
       }
-      const uint64_t key = GlobalKey(producer, id);
-      if (!engine_->Erase(key).ok()) {
-        refuse(wire::OP_ERASE, index, id, wire::UNKNOWN_ID,
-               "no such object of producer " + std::to_string(producer));
-        continue;
-      }
-      --objects_;
-      ++out->erases;
+      keys_.push_back(GlobalKey(producer, id));
+      item_index_.push_back(index);
     }
+    flush_erases();
     ApplyBoxes(batch, wire::OP_INSERT, batch.inserts(), refuse, out);
     ApplyBoxes(batch, wire::OP_UPDATE, batch.updates(), refuse, out);
   }
@@ -112,10 +123,7 @@ class TypedHost final : public EngineHost {
         keys.push_back(key);
       }
     });
-    uint64_t erased = 0;
-    for (uint64_t key : keys) {
-      if (engine_->Erase(key).ok()) ++erased;
-    }
+    const uint64_t erased = keys.size() - engine_->EraseMany(keys);
     objects_ -= erased;
     return erased;
   }
@@ -318,6 +326,7 @@ class TypedHost final : public EngineHost {
 
   std::unique_ptr<Engine> engine_;
   std::vector<typename Engine::Item> items_;  // a run of a batch's updates, for UpdateMany
+  std::vector<uint64_t> keys_;                // a run of a batch's erases, for EraseMany
   std::vector<uint32_t> item_index_;          // their indexes in the batch
   uint64_t max_objects_;
   uint64_t objects_ = 0;

@@ -142,8 +142,14 @@ class DifferentialCore : public ::testing::Test {
           DoInsert(next_key_++, RandomBox());
         }
         return;
-      case 2:  // erase
-        if (!empty) DoErase(RandomLiveKey());
+      case 2:  // erase, one key or a batch through EraseMany
+        if (!empty) {
+          if (Below(4) == 0) {
+            EraseBatch();
+          } else {
+            DoErase(RandomLiveKey());
+          }
+        }
         return;
       case 3:
       case 4:
@@ -254,6 +260,47 @@ class DifferentialCore : public ::testing::Test {
     ASSERT_EQ(refused, bad);
     for (size_t i = 0; i < items.size(); ++i) {
       if (!bad.count(i)) model_.boxes()[items[i].key] = items[i].box;
+    }
+  }
+
+  // Keys past the front end's look-ahead (16) at times; a key named twice, an unknown key and
+  // a key inserted in this frame (a cancelled insert) among them. Refused keys are reported by
+  // index with Erase's code and change nothing.
+  void EraseBatch() {
+    std::vector<uint64_t> keys;
+    std::map<size_t, StatusCode> bad;  // index -> the code it must be refused with
+    std::set<uint64_t> named;
+    const size_t n = 1 + Below(Below(3) == 0 ? 40 : 6);
+    for (size_t i = 0; i < n && named.size() < model_.boxes().size(); ++i) {
+      const uint64_t pick = Below(10);
+      if (pick == 0) {
+        bad[keys.size()] = StatusCode::kNotFound;
+        keys.push_back(next_key_ + 1000000 + i);
+      } else if (pick == 1 && !keys.empty()) {
+        bad[keys.size()] = StatusCode::kNotFound;
+        keys.push_back(keys.back());  // already erased by this batch, or unknown
+      } else if (pick == 2) {
+        const uint64_t key = next_key_++;
+        DoInsert(key, RandomBox());
+        named.insert(key);
+        keys.push_back(key);
+      } else {
+        uint64_t key = RandomLiveKey();
+        while (named.count(key)) key = RandomLiveKey();
+        named.insert(key);
+        keys.push_back(key);
+      }
+    }
+    std::map<size_t, StatusCode> refused;
+    const size_t count = engine_->EraseMany(keys, [&](size_t i, const Status& s) {
+      EXPECT_TRUE(refused.emplace(i, s.code()).second) << "key " << i << " refused twice";
+    });
+    EXPECT_EQ(count, refused.size());
+    ASSERT_EQ(refused, bad);
+    for (uint64_t key : named) {
+      model_.boxes().erase(key);
+      model_.options().erase(key);
+      erased_keys_.push_back(key);
     }
   }
 

@@ -250,6 +250,49 @@ TEST(EngineHost, UpdateRefusalsComeInIndexOrder) {
                                         GlobalKey(1, 3)}));
 }
 
+// Erases reach the engine in runs through EraseMany; a run ends before an id the host refuses
+// itself, so refusals come out in index order; the kept erases take their objects' pairs along.
+TEST(EngineHost, EraseRefusalsComeInIndexOrder) {
+  auto host = MakeHost("grid_dense", 3, CoordinateType::kFloat);
+  wire::UpdateBatch load = Batch(1, 3);
+  for (uint64_t id = 1; id <= 40; ++id) {  // 2k-1 and 2k overlap
+    const double x = static_cast<double>((id + 1) / 2) * 3;
+    AddBox(load.mutable_inserts(), id, {x, 0, 0}, {x + 1, 1, 1});
+  }
+  ASSERT_TRUE(Apply(*host, load).rejects.empty());
+  std::vector<uint64_t> unc, col;
+  host->Query(&unc, &col);
+  ASSERT_EQ(col.size(), 40u);
+  wire::UpdateBatch batch = Batch(1, 3);
+  std::vector<std::pair<uint32_t, wire::RejectReason>> want;
+  auto erase = [&](uint64_t id, wire::RejectReason reason) {
+    if (reason != wire::REJECT_REASON_UNSPECIFIED) {
+      want.emplace_back(static_cast<uint32_t>(batch.erases_size()), reason);
+    }
+    batch.add_erases(id);
+  };
+  erase(100, wire::UNKNOWN_ID);
+  erase(1, wire::REJECT_REASON_UNSPECIFIED);
+  erase(1, wire::UNKNOWN_ID);  // erased by this batch already
+  erase(uint64_t{1} << 48, wire::ID_OUT_OF_RANGE);
+  for (uint64_t id = 3; id <= 31; id += 2) erase(id, wire::REJECT_REASON_UNSPECIFIED);  // > 16
+  erase(101, wire::UNKNOWN_ID);
+  erase(33, wire::REJECT_REASON_UNSPECIFIED);
+  Outcome out = Apply(*host, batch);
+  std::vector<std::pair<uint32_t, wire::RejectReason>> got;
+  for (const Reject& r : out.rejects) {
+    EXPECT_EQ(r.op, wire::OP_ERASE);
+    got.emplace_back(r.index, r.reason);
+  }
+  EXPECT_EQ(got, want);
+  EXPECT_EQ(out.counts.erases, 17u);
+  EXPECT_EQ(out.counts.rejected, want.size());
+  EXPECT_EQ(host->Objects(), 23u);
+  host->Query(&unc, &col);  // the pairs of the 17 erased objects end
+  EXPECT_TRUE(col.empty());
+  EXPECT_EQ(unc.size(), 2 * 17u);
+}
+
 TEST(EngineHost, UnknownAlgorithmOrDimensionIsRefused) {
   EngineConfig config;
   std::unique_ptr<EngineHost> host;

@@ -79,7 +79,7 @@ class Broadphase {
  public:
   using BoxType = Box<K, T>;
   using Item = KeyedBox<K, T, Key>;
-  /// Told the index of each item UpdateMany refused, and why.
+  /// Told the index of each item UpdateMany or EraseMany refused, and why.
   using RefusedFn = std::function<void(size_t index, const Status& status)>;
   virtual ~Broadphase() = default;
 
@@ -108,6 +108,20 @@ class Broadphase {
   }
   /// Buffers the erasure of key. NotFound if key is not live.
   virtual Status Erase(const Key& key) = 0;
+  /// Erase(keys[i]) for every key, in order (a key named twice is refused the second time). A
+  /// refused key is passed to refused (when set) with its index and the Status Erase would
+  /// return; the others are erased. Returns the number refused. Engines may override it to
+  /// overlap the look-ups of many keys, as UpdateMany does.
+  virtual size_t EraseMany(std::span<const Key> keys, const RefusedFn& refused = nullptr) {
+    size_t count = 0;
+    for (size_t i = 0; i < keys.size(); ++i) {
+      Status s = Erase(keys[i]);
+      if (s.ok()) continue;
+      ++count;
+      if (refused) refused(i, s);
+    }
+    return count;
+  }
   /// Applies all buffered calls and reports the overlap changes to sink in canonical order.
   virtual void Query(EventSink<Key>& sink) = 0;
   /// Calls f(a, b) with a < b for every overlapping pair as of the last query (any order).

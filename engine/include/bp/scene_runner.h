@@ -43,7 +43,7 @@ class SceneRunner {
     uint64_t collides = sink_.collides;
     uint64_t uncollides = sink_.uncollides;
     auto start = Clock::now();
-    for (uint64_t id : ops_.erases) Check(engine_.Erase(id), id);
+    engine_.EraseMany(ops_.erases, [&](size_t i, const Status& s) { Check(s, ops_.erases[i]); });
     items_.clear();
     for (const SceneBox& b : ops_.updates) items_.push_back({b.id, Convert(b)});
     engine_.UpdateMany(items_, [&](size_t i, const Status& s) { Check(s, items_[i].key); });

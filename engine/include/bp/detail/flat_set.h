@@ -80,6 +80,10 @@ class FlatSet {
     return true;
   }
 
+  /// Where v's probe run starts (nullptr for an empty set), for the caller to prefetch before a
+  /// look-up soon after (a member that prefetched itself would be deleted by GCC 12 as pure).
+  const void* HomeLine(U v) const { return size_ == 0 ? nullptr : &slots_[Home(v)]; }
+
   /// True if v is present.
   bool Contains(U v) const {
     if (size_ == 0) return false;

@@ -128,60 +128,35 @@ class KeyedEngine final : public Broadphase<Core::kDim, typename Core::Coord, Ke
     return UpdateTagged(key, KeyIndex<Key>::Tag(key), box);
   }
 
-  /// As Update per item, with the look-ups of later items started early: the key index's line
-  /// kAhead items ahead, the slot its entry names kAhead / 2 items ahead. In a large scene both
-  /// are cache misses, and a loop of Update calls waits for them one after the other (perf on
-  /// the daemon at S1-200k: 24% of its time in Update, nearly all on those two loads). Each
-  /// key's hash is computed once, kAhead items ahead, and kept in a ring until its item's turn.
+  /// As Update per item, with the look-ups of later items started early (ForEachAhead): perf on
+  /// the daemon at S1-200k put 24% of its time in a loop of Update calls, nearly all waiting on
+  /// the key index's line and the slot, one item after the other.
   size_t UpdateMany(std::span<const typename Base::Item> items,
                     const typename Base::RefusedFn& refused = nullptr) override {
-    constexpr size_t kAhead = 16;
-    uint32_t tags[kAhead];
-    const size_t n = items.size();
-    const size_t first = std::min(n, kAhead);
-    for (size_t i = 0; i < first; ++i) {
-      tags[i] = KeyIndex<Key>::Tag(items[i].key);
-      if (const void* line = index_.HomeLine(tags[i])) __builtin_prefetch(line);
-    }
-    size_t count = 0;
-    for (size_t i = 0; i < n; ++i) {
-      if (i + kAhead / 2 < n) {
-        const uint32_t guess = index_.Guess(tags[(i + kAhead / 2) % kAhead]);
-        if (guess < slots_.size()) {
-          const char* slot = reinterpret_cast<const char*>(&slots_[guess]);
-          __builtin_prefetch(slot);
-          __builtin_prefetch(slot + sizeof(Slot) - 1);
-        }
-      }
-      const uint32_t tag = tags[i % kAhead];
-      if (i + kAhead < n) {
-        const uint32_t ahead = KeyIndex<Key>::Tag(items[i + kAhead].key);
-        tags[i % kAhead] = ahead;
-        if (const void* line = index_.HomeLine(ahead)) __builtin_prefetch(line);
-      }
-      const Status s = UpdateTagged(items[i].key, tag, items[i].box);
-      if (s.ok()) continue;
-      ++count;
-      if (refused) refused(i, s);
-    }
-    return count;
+    return ForEachAhead(
+        items, [](const typename Base::Item& item) -> const Key& { return item.key; },
+        [&](size_t i, uint32_t tag) {
+          const Status s = UpdateTagged(items[i].key, tag, items[i].box);
+          if (s.ok()) return true;
+          if (refused) refused(i, s);
+          return false;
+        });
   }
 
-  Status Erase(const Key& key) override {
-    const uint32_t h = Find(key);
-    if (h == kNoHandle || !Present(slots_[h])) {
-      return Status(StatusCode::kNotFound, "erase: unknown key");
-    }
-    Slot& slot = slots_[h];
-    if (slot.live) {
-      slot.pending = Pending::kErase;
-      Enqueue(h);
-    } else {
-      // Inserted and erased between two queries: nothing reaches the core.
-      slot.pending = Pending::kNone;
-      index_.Erase(key, h);
-    }
-    return Status::Ok();
+  Status Erase(const Key& key) override { return EraseTagged(key, KeyIndex<Key>::Tag(key)); }
+
+  /// As Erase per key, with the look-ups of later keys started early, as in UpdateMany (churn
+  /// names keys all over the table).
+  size_t EraseMany(std::span<const Key> keys,
+                   const typename Base::RefusedFn& refused = nullptr) override {
+    return ForEachAhead(
+        keys, [](const Key& key) -> const Key& { return key; },
+        [&](size_t i, uint32_t tag) {
+          const Status s = EraseTagged(keys[i], tag);
+          if (s.ok()) return true;
+          if (refused) refused(i, s);
+          return false;
+        });
   }
 
   void Query(EventSink<Key>& sink) override {
@@ -200,7 +175,11 @@ class KeyedEngine final : public Broadphase<Core::kDim, typename Core::Coord, Ke
     // their pending state during the core's Apply); erased and cancelled handles are committed
     // after it, as their handles may be freed only then (invariant 2).
     for (size_t i = 0; i < queue_.size(); ++i) {
-      if (i + 8 < queue_.size()) __builtin_prefetch(&slots_[queue_[i + 8]]);
+      if (i + 16 < queue_.size()) {
+        const char* ahead = reinterpret_cast<const char*>(&slots_[queue_[i + 16]]);
+        __builtin_prefetch(ahead);
+        __builtin_prefetch(ahead + sizeof(Slot) - 1);
+      }
       const uint32_t h = queue_[i];
       Slot& slot = slots_[h];
       switch (slot.pending) {
@@ -225,14 +204,26 @@ class KeyedEngine final : public Broadphase<Core::kDim, typename Core::Coord, Ke
     queue_.clear();
     core_.Apply(erases_, updates_, inserts_);
 
+    // The changed pairs' handles, then their keys: the slots of a frame's pairs lie all over
+    // the table, so they are prefetched kKeysAhead pairs ahead.
+    drained_.clear();
+    core_.tracker().DrainChanges([&](uint32_t a, uint32_t b, bool now) {
+      drained_.push_back(Drained{a, b, now});
+    });
     collides_.clear();
     uncollides_.clear();
-    core_.tracker().DrainChanges([&](uint32_t a, uint32_t b, bool now) {
-      const Key& ka = slots_[a].key;
-      const Key& kb = slots_[b].key;
+    constexpr size_t kKeysAhead = 16;
+    for (size_t i = 0; i < drained_.size(); ++i) {
+      if (i + kKeysAhead < drained_.size()) {
+        __builtin_prefetch(&slots_[drained_[i + kKeysAhead].a].key);
+        __builtin_prefetch(&slots_[drained_[i + kKeysAhead].b].key);
+      }
+      const Drained& d = drained_[i];
+      const Key& ka = slots_[d.a].key;
+      const Key& kb = slots_[d.b].key;
       auto pair = std::less<Key>()(ka, kb) ? std::make_pair(ka, kb) : std::make_pair(kb, ka);
-      (now ? collides_ : uncollides_).push_back(std::move(pair));
-    });
+      (d.now ? collides_ : uncollides_).push_back(std::move(pair));
+    }
 
     // Commit the erased and cancelled slots and free their handles (invariant 2). The core's
     // apply has evicted their slots and key-index lines since the first walk: both are
@@ -366,6 +357,60 @@ class KeyedEngine final : public Broadphase<Core::kDim, typename Core::Coord, Ke
     Pending pending = Pending::kNone;
   };
 
+  // Calls apply(i, tag of key_of(items[i])) for every item in order, with the key index's line
+  // of the item kAhead ahead and the slot its entry names kAhead / 2 ahead prefetched (in a
+  // large scene both are cache misses, which a plain loop waits for one after the other). Each
+  // key's tag is computed once, kAhead items ahead, and kept in a ring until its item's turn.
+  // Returns the number of items apply refused (returned false for).
+  template <class Item, class KeyOf, class Apply>
+  size_t ForEachAhead(std::span<const Item> items, KeyOf&& key_of, Apply&& apply) {
+    constexpr size_t kAhead = 16;
+    uint32_t tags[kAhead];
+    const size_t n = items.size();
+    const size_t first = std::min(n, kAhead);
+    for (size_t i = 0; i < first; ++i) {
+      tags[i] = KeyIndex<Key>::Tag(key_of(items[i]));
+      if (const void* line = index_.HomeLine(tags[i])) __builtin_prefetch(line);
+    }
+    size_t count = 0;
+    for (size_t i = 0; i < n; ++i) {
+      if (i + kAhead / 2 < n) {
+        const uint32_t guess = index_.Guess(tags[(i + kAhead / 2) % kAhead]);
+        if (guess < slots_.size()) {
+          const char* slot = reinterpret_cast<const char*>(&slots_[guess]);
+          __builtin_prefetch(slot);
+          __builtin_prefetch(slot + sizeof(Slot) - 1);
+        }
+      }
+      const uint32_t tag = tags[i % kAhead];
+      if (i + kAhead < n) {
+        const uint32_t ahead = KeyIndex<Key>::Tag(key_of(items[i + kAhead]));
+        tags[i % kAhead] = ahead;
+        if (const void* line = index_.HomeLine(ahead)) __builtin_prefetch(line);
+      }
+      if (!apply(i, tag)) ++count;
+    }
+    return count;
+  }
+
+  Status EraseTagged(const Key& key, uint32_t tag) {
+    const uint32_t h =
+        index_.Find(key, tag, [this](uint32_t x) -> const Key& { return slots_[x].key; });
+    if (h == kNoHandle || !Present(slots_[h])) {
+      return Status(StatusCode::kNotFound, "erase: unknown key");
+    }
+    Slot& slot = slots_[h];
+    if (slot.live) {
+      slot.pending = Pending::kErase;
+      Enqueue(h);
+    } else {
+      // Inserted and erased between two queries: nothing reaches the core.
+      slot.pending = Pending::kNone;
+      index_.Erase(key, h);
+    }
+    return Status::Ok();
+  }
+
   // Update, with key's KeyIndex tag computed by the caller.
   Status UpdateTagged(const Key& key, uint32_t tag, const BoxType& box) {
     if (Status s = ValidateBox(box); !s.ok()) return Annotate(s, "update");
@@ -480,6 +525,11 @@ class KeyedEngine final : public Broadphase<Core::kDim, typename Core::Coord, Ke
   std::vector<uint32_t> free_;
   std::vector<uint32_t> queue_;
   std::vector<uint32_t> after_apply_;  // queued erases and cancelled inserts, during Query
+  struct Drained {
+    uint32_t a, b;
+    bool now;
+  };
+  std::vector<Drained> drained_;  // the tracker's changes of a query, before their keys
   std::vector<std::pair<uint32_t, ObjectOptions>> insert_options_;  // pending inserts' options
   // Per-query buffers, kept to reuse their allocations.
   std::vector<uint32_t> erases_;

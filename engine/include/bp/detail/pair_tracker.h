@@ -9,8 +9,12 @@
 //  1. overlaps_ holds exactly the overlapping pairs of the current boxes (when a core is idle).
 //  2. A pair is in changed_ iff its membership in overlaps_ differs from that at the last Drain.
 //  3. Every pair in overlaps_ passes Accepts.
+//  4. Every pair in changed_ has an entry in toggled_; its first entry there since the last
+//     Drain records the direction of the pair's first toggle since then.
 #pragma once
 
+#include <algorithm>
+#include <cstddef>
 #include <cstdint>
 #include <vector>
 
@@ -62,14 +66,14 @@ class PairTracker {
     if (!Accepts(a, b)) return false;
     uint64_t p = HandlePair(a, b);
     if (!overlaps_.Insert(p)) return false;
-    Toggle(p);
+    Toggle(p, true);
     return true;
   }
   /// Records that a and b do not overlap (idempotent); true if they did before.
   bool Remove(uint32_t a, uint32_t b) {
     uint64_t p = HandlePair(a, b);
     if (!overlaps_.Erase(p)) return false;
-    Toggle(p);
+    Toggle(p, false);
     return true;
   }
   bool Contains(uint32_t a, uint32_t b) const { return overlaps_.Contains(HandlePair(a, b)); }
@@ -86,16 +90,25 @@ class PairTracker {
 
   /// Calls f(a, b, overlapping_now) for every pair changed since the last drain, then forgets
   /// them. O(toggles since the last drain): the section 3.3 bound, whatever earlier queries did.
+  /// A pair is in changed_ iff it toggled an odd number of times since the last drain, and its
+  /// first entry in toggled_ is that of its first toggle: toggles alternate (Add only when it
+  /// was absent, Remove only when present), so the first's direction is the state now, and
+  /// overlaps_ need not be probed. changed_'s lines are prefetched ahead (pairs come in toggle
+  /// order, all over the table).
   template <class F>
   void DrainChanges(F&& f) {
-    for (uint64_t p : toggled_) {
+    const size_t n = toggled_.size();
+    for (size_t i = 0; i < n; ++i) {
+      if (i + kDrainAhead < n)
+        __builtin_prefetch(changed_.HomeLine(toggled_[i + kDrainAhead].pair));
+      const Toggled& t = toggled_[i];
       // A pair toggled back to its old state is no longer in changed_ (or was reported already).
-      if (changed_.Erase(p, /*shrink=*/false))
-        f(PairFirst(p), PairSecond(p), overlaps_.Contains(p));
+      if (changed_.Erase(t.pair, /*shrink=*/false)) f(PairFirst(t.pair), PairSecond(t.pair), t.now);
     }
-    changed_.ShrinkToFit(toggled_.size());
+    changed_.ShrinkToFit(n);
     toggled_.clear();
-    if (toggled_.capacity() > 4096) toggled_.shrink_to_fit();
+    // Memory held after a burst is given back; a steady rate of toggles keeps its buffer.
+    if (toggled_.capacity() > std::max<size_t>(4096, 4 * n)) toggled_.shrink_to_fit();
   }
   /// Calls f(a, b) for every overlapping pair.
   template <class F>
@@ -107,14 +120,20 @@ class PairTracker {
   const FlatSet<uint64_t>& overlap_set() const { return overlaps_; }
 
  private:
-  void Toggle(uint64_t p) {
-    if (!changed_.Erase(p) && changed_.Insert(p)) toggled_.push_back(p);
+  struct Toggled {
+    uint64_t pair;
+    bool now;  // overlapping after this toggle
+  };
+  static constexpr size_t kDrainAhead = 16;
+
+  void Toggle(uint64_t p, bool now) {
+    if (!changed_.Erase(p) && changed_.Insert(p)) toggled_.push_back(Toggled{p, now});
   }
 
   FlatSet<uint64_t> overlaps_;
   OptionsTable options_;
-  FlatSet<uint64_t> changed_;      // pairs whose state differs from the last drain
-  std::vector<uint64_t> toggled_;  // every pair that entered changed_ since the last drain
+  FlatSet<uint64_t> changed_;     // pairs whose state differs from the last drain
+  std::vector<Toggled> toggled_;  // every entry of a pair into changed_ since the last drain
 };
 
 }  // namespace bp::detail
