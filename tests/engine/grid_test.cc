@@ -529,6 +529,42 @@ TEST(Grid, DenseCellsGiveBackFreedSlots) {
   EXPECT_GT(events, 200u);  // the scene is not idle
 }
 
+// With no large object when a query starts, the cells allocate the local handles of the objects
+// that enter them only when they are applied. An object that turns large in that query ends the
+// deferral, so that its scan of the cells' tables finds the objects that entered them before it
+// in the same query (here: one migrated, one inserted by an erase and re-insert, both under it).
+TEST(Grid, ObjectTurningLargeMidQuerySeesObjectsThatEnteredCellsBefore) {
+  for (unsigned threads : {1u, 2u}) {
+    GridDenseOptions options;
+    options.cell_size = 4;
+    options.max_cells_per_object = 8;  // a unit cube spans 8 cells at most
+    options.threads = threads;
+    GridDense<3, float> engine(options);
+    Twin<3, float, GridDense<3, float>> twin(&engine);
+    for (uint64_t i = 0; i < 8; ++i) {
+      const float x = 40.0f + 6.0f * static_cast<float>(i);
+      twin.Insert(i, Cube<3, float>(x, 1));
+    }
+    twin.Query();
+    EXPECT_EQ(engine.GetStats().large_objects, 0u);
+    twin.Update(1, Cube<3, float>(9.5f, 1));  // migrates into cells nobody held
+    twin.Erase(2);
+    twin.Insert(2, Cube<3, float>(13, 1));
+    twin.Update(3, Cube<3, float>(0, 30));   // turns large over both
+    twin.Update(4, Cube<3, float>(17, 1));  // migrates after it
+    twin.Insert(9, Cube<3, float>(21, 1));  // inserted after it
+    twin.Query();
+    EXPECT_EQ(engine.GetStats().large_objects, 1u);
+    EXPECT_TRUE(engine.Validate().ok()) << engine.Validate().message();
+    twin.Update(3, Cube<3, float>(0, 1));  // small again: the deferral resumes next query
+    twin.Update(1, Cube<3, float>(0.5f, 1.5f));
+    twin.Query();
+    twin.Update(5, Cube<3, float>(1, 2));
+    twin.Query();
+    EXPECT_TRUE(engine.Validate().ok()) << engine.Validate().message();
+  }
+}
+
 TEST(Grid, ValidatorNoticesCorruption) {
   GridSegmentedSapOptions options;
   options.cell_size = 4;

@@ -136,6 +136,7 @@ class GridCore {
       sized_for_ = inserts.size();
       placed_ = true;
     }
+    defer_locals_ = large_count_ == 0;
     EraseObjects(erases);
     RouteUpdates(updates);
     InsertObjects(inserts);
@@ -227,7 +228,7 @@ class GridCore {
     std::vector<uint32_t> global;      // local handle -> global handle (kNone: free)
     std::vector<uint32_t> free_local;  // reusable local handles
     std::vector<uint32_t> large;       // large objects whose range covers this cell
-    uint32_t members = 0;              // live objects once the buffered operations are applied
+    uint32_t members = 0;              // live objects as of the cell's last apply
     bool in_use = false;
   };
   struct Large {
@@ -390,8 +391,9 @@ class GridCore {
   }
 
   // New objects land anywhere, and churn recycles handles from anywhere: each one's record and
-  // the cell-table line of the first cell it enters are prefetched 8 inserts ahead, then that
-  // cell's record 4 ahead (found through the table, which is not changed).
+  // the cell-table line of the first cell it enters are prefetched 8 inserts ahead, then, when
+  // local handles are allocated now (see defer_locals_), that cell's record 4 ahead (found
+  // through the table, which is not changed).
   void InsertObjects(std::span<const HandleBox<kDim, Coord>> inserts) {
     const size_t n = inserts.size();
     for (size_t i = 0; i < n; ++i) {
@@ -400,7 +402,7 @@ class GridCore {
         if (ahead.handle < objects_.size()) Prefetch(&objects_[ahead.handle]);
         if (const void* line = cell_of_.HomeLine(FirstCellKey(ahead.box))) Prefetch(line);
       }
-      if (i + 4 < n) {
+      if (i + 4 < n && !defer_locals_) {
         const uint32_t* idx = std::as_const(cell_of_).Find(FirstCellKey(inserts[i + 4].box));
         if (idx != nullptr && *idx < cells_.size()) Prefetch(cells_[*idx].get());
       }
@@ -437,8 +439,8 @@ class GridCore {
   }
 
   // Churn picks its victims anywhere in the table: each erased object's records are prefetched
-  // ahead in the order they depend on each other (the object, its cell references, the first
-  // cell it leaves).
+  // ahead in the order they depend on each other (the object, then its cell references; the
+  // cells it leaves are not touched until they are applied).
   void EraseObjects(std::span<const uint32_t> erases) {
     const size_t n = erases.size();
     for (size_t i = 0; i < n; ++i) {
@@ -446,10 +448,6 @@ class GridCore {
       if (i + 8 < n) {
         const Object& ahead = objects_[erases[i + 8]];
         if (ahead.nrefs != 0) Prefetch(&refs_[ahead.refs]);
-      }
-      if (i + 4 < n) {
-        const Object& ahead = objects_[erases[i + 4]];
-        if (ahead.nrefs != 0) Prefetch(cells_[refs_[ahead.refs].cell].get());
       }
       EraseObject(erases[i]);
     }
@@ -540,11 +538,7 @@ class GridCore {
         ref = refs_[o.refs + Space::RowMajor(o.lo, o.hi, c)];
         RouteUpdate(ref, box);
       } else {
-        ref.cell = CellAt(c);
-        GridCell& cell = *cells_[ref.cell];
-        ref.local = AllocLocal(cell, h);
-        ++cell.members;
-        RouteInsert(ref, box);
+        ref = EnterCell(CellAt(c), h, refs + i, box);
       }
       refs_[refs + i++] = ref;
     });
@@ -552,7 +546,6 @@ class GridCore {
     Space::ForEachCoord(o.lo, o.hi, [&](const CellCoord& c) {
       CellRef ref = refs_[o.refs + j++];
       if (Space::Contains(lo, hi, c)) return;
-      --cells_[ref.cell]->members;
       RouteErase(ref);
     });
     FreeRefs(o.refs, o.nrefs);
@@ -567,11 +560,7 @@ class GridCore {
     const uint32_t refs = AllocRefs(n);
     uint32_t i = 0;
     Space::ForEachCoord(lo, hi, [&](const CellCoord& c) {
-      uint32_t idx = CellAt(c);
-      GridCell& cell = *cells_[idx];
-      const CellRef ref{idx, AllocLocal(cell, h)};
-      ++cell.members;
-      RouteInsert(ref, objects_[h].box);
+      const CellRef ref = EnterCell(CellAt(c), h, refs + i, objects_[h].box);
       refs_[refs + i++] = ref;
     });
     Object& o = objects_[h];
@@ -582,13 +571,39 @@ class GridCore {
     o.large = kNone;
   }
 
+  // Routes h's insert into cell idx, whose reference will sit at refs_[ref_at]; returns that
+  // reference. With defer_locals_ the cell's local handle is left for ApplyCell to allocate
+  // (the reference's local is kNone until then): the cell's record and tables are not touched
+  // here, on the serial path, but when the cell is applied (on its pool thread), where they are
+  // read anyway.
+  CellRef EnterCell(uint32_t idx, uint32_t h, uint32_t ref_at, const BoxType& box) {
+    if (defer_locals_) {
+      RouteInsert(CellRef{idx, h}, box, ref_at);
+      return CellRef{idx, kNone};
+    }
+    const CellRef ref{idx, AllocLocal(*cells_[idx], h)};
+    RouteInsert(ref, box, kNone);
+    return ref;
+  }
+
+  // Ends deferral for the rest of the query: allocates the local handles of the inserts routed
+  // so far. A large object is about to appear, whose scans read the cells' tables.
+  void AssignDeferredLocals() {
+    for (size_t k = 0; k < routed_inserts_.size(); ++k) {
+      uint32_t& ref_at = routed_insert_refs_[k];
+      if (ref_at == kNone) continue;
+      Routed& r = routed_inserts_[k];
+      const uint32_t local = AllocLocal(*cells_[r.cell], r.update.handle);
+      refs_[ref_at].local = local;
+      r.update.handle = local;
+      ref_at = kNone;
+    }
+    defer_locals_ = false;
+  }
+
   void LeaveCells(uint32_t h) {
     Object& o = objects_[h];
-    for (uint32_t i = 0; i < o.nrefs; ++i) {
-      const CellRef ref = refs_[o.refs + i];
-      --cells_[ref.cell]->members;
-      RouteErase(ref);
-    }
+    for (uint32_t i = 0; i < o.nrefs; ++i) RouteErase(refs_[o.refs + i]);
     FreeRefs(o.refs, o.nrefs);
     o.nrefs = 0;
   }
@@ -739,8 +754,11 @@ class GridCore {
   // Inserts and erases of cell slots are buffered like updates, in query-wide arrays grouped by
   // cell before the cells are applied: per-cell vectors cost a miss on each first push and
   // again on each cell's first read (perf: half of the dense cell's Apply samples).
-  void RouteInsert(CellRef ref, const BoxType& box) {
+  // ref_at: where the object's reference to the cell sits when its local handle is still to be
+  // allocated (ref.local is then the global handle), else kNone.
+  void RouteInsert(CellRef ref, const BoxType& box, uint32_t ref_at) {
     PushRouted(routed_inserts_, ref, box);
+    routed_insert_refs_.push_back(ref_at);
     ++cell_work_[ref.cell].inserts;
     Touch(ref.cell);
   }
@@ -776,6 +794,7 @@ class GridCore {
     grouped_.resize(offset);
     grouped_erases_.resize(erase_offset);
     grouped_inserts_.resize(insert_offset);
+    grouped_insert_refs_.resize(insert_offset);
     // The begin fields serve as write cursors, and are set back after.
     for (Shard& sh : shards_) {
       for (const Routed& r : sh.routed) grouped_[cell_work_[r.cell].begin++] = r.update;
@@ -786,8 +805,12 @@ class GridCore {
     for (const Routed& r : routed_) grouped_[cell_work_[r.cell].begin++] = r.update;
     for (const CellRef& r : routed_erases_)
       grouped_erases_[cell_work_[r.cell].erase_begin++] = r.local;
-    for (const Routed& r : routed_inserts_)
-      grouped_inserts_[cell_work_[r.cell].insert_begin++] = r.update;
+    for (size_t k = 0; k < routed_inserts_.size(); ++k) {
+      const Routed& r = routed_inserts_[k];
+      const uint32_t at = cell_work_[r.cell].insert_begin++;
+      grouped_inserts_[at] = r.update;
+      grouped_insert_refs_[at] = routed_insert_refs_[k];
+    }
     for (uint32_t idx : touched_) {
       CellWork& work = cell_work_[idx];
       work.begin -= work.updates;
@@ -797,6 +820,7 @@ class GridCore {
     routed_.clear();
     routed_erases_.clear();
     routed_inserts_.clear();
+    routed_insert_refs_.clear();
   }
 
   // Applies every touched cell's buffered operations (in parallel: cells share nothing), then
@@ -854,8 +878,18 @@ class GridCore {
     GridCell& cell = *cells_[idx];
     const CellWork& work = cell_work_[idx];
     const std::span<const uint32_t> erases(grouped_erases_.data() + work.erase_begin, work.erases);
-    cell.core.Apply(erases, std::span(grouped_.data() + work.begin, work.updates),
-                    std::span(grouped_inserts_.data() + work.insert_begin, work.inserts));
+    const std::span inserts(grouped_inserts_.data() + work.insert_begin, work.inserts);
+    // Deferred inserts get their local handles now (see EnterCell), in routing order; each
+    // writes its object's reference to this cell, which no other cell's thread writes.
+    const uint32_t* ref_at = grouped_insert_refs_.data() + work.insert_begin;
+    for (size_t k = 0; k < inserts.size(); ++k) {
+      if (ref_at[k] == kNone) continue;
+      const uint32_t local = AllocLocal(cell, inserts[k].handle);
+      refs_[ref_at[k]].local = local;
+      inserts[k].handle = local;
+    }
+    cell.members = cell.members + work.inserts - work.erases;
+    cell.core.Apply(erases, std::span(grouped_.data() + work.begin, work.updates), inserts);
     Stats s;
     cell.core.FillStats(&s);
     std::vector<Witnessed>& out = witnessed_[thread];
@@ -954,6 +988,7 @@ class GridCore {
   // --- large objects ---------------------------------------------------------------------------
 
   void InsertLarge(uint32_t h, const CellCoord& lo, const CellCoord& hi) {
+    if (defer_locals_) AssignDeferredLocals();
     uint32_t l;
     if (!free_large_.empty()) {
       l = free_large_.back();
@@ -1126,6 +1161,7 @@ class GridCore {
     free_large_.clear();
     changed_large_.clear();
     large_count_ = 0;
+    defer_locals_ = true;
     refs_.clear();
     for (auto& list : free_refs_) list.clear();
     extra_.Clear();
@@ -1193,10 +1229,16 @@ class GridCore {
   std::vector<Routed> routed_;
   std::vector<Shard> shards_;
   std::vector<HandleBox<kDim, Coord>> grouped_;
-  std::vector<CellRef> routed_erases_;  // this query's erases of cell slots, as routed
-  std::vector<Routed> routed_inserts_;  // and its inserts
+  std::vector<CellRef> routed_erases_;        // this query's erases of cell slots, as routed
+  std::vector<Routed> routed_inserts_;        // and its inserts
+  std::vector<uint32_t> routed_insert_refs_;  // per routed insert: see RouteInsert's ref_at
   std::vector<uint32_t> grouped_erases_;
   std::vector<HandleBox<kDim, Coord>> grouped_inserts_;
+  std::vector<uint32_t> grouped_insert_refs_;
+  // This query allocates cell-local handles of inserts when it applies the cells (EnterCell).
+  // Only while no large object exists: a large object's scans read the cells' tables, so the
+  // first one to appear ends the deferral (AssignDeferredLocals).
+  bool defer_locals_ = false;
   // Per cell index, this query's work: touched (in touched_), the updates, erases and inserts
   // routed to it, and where their runs start in grouped_, grouped_erases_ and grouped_inserts_.
   // Kept apart from the cells so that routing reads a few bytes.
