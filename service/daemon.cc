@@ -1,6 +1,7 @@
 #include "daemon.h"
 
 #include <algorithm>
+#include <cstddef>
 #include <random>
 
 #include "percentile.h"
@@ -536,15 +537,20 @@ void Daemon::RunFrame(uint32_t source_producer, uint64_t source_frame, uint64_t 
     event_msg_.set_last_part(part + 1 == parts);
     const size_t end = std::min(pairs, next + per_part);
     const size_t n_unc = uncollide_.size() / 2;
-    for (; next < end; ++next) {
-      if (next < n_unc) {
-        event_msg_.add_uncollide(uncollide_[2 * next]);
-        event_msg_.add_uncollide(uncollide_[2 * next + 1]);
-      } else {
-        event_msg_.add_collide(collide_[2 * (next - n_unc)]);
-        event_msg_.add_collide(collide_[2 * (next - n_unc) + 1]);
-      }
+    // The part's pairs [next, end): a run of uncollides, then a run of collides, copied whole.
+    if (next < n_unc) {
+      const size_t to = std::min(end, n_unc);
+      event_msg_.mutable_uncollide()->Add(
+          uncollide_.begin() + static_cast<std::ptrdiff_t>(2 * next),
+          uncollide_.begin() + static_cast<std::ptrdiff_t>(2 * to));
     }
+    if (end > n_unc) {
+      const size_t from = std::max(next, n_unc) - n_unc;
+      const size_t to = end - n_unc;
+      event_msg_.mutable_collide()->Add(collide_.begin() + static_cast<std::ptrdiff_t>(2 * from),
+                                        collide_.begin() + static_cast<std::ptrdiff_t>(2 * to));
+    }
+    next = end;
     event_msg_.set_source_producer(source_producer);
     event_msg_.set_source_frame(source_frame);
     event_msg_.set_source_sent_time_ns(source_sent_ns);
