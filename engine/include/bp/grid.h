@@ -848,19 +848,17 @@ class GridCore {
           ApplyCell(i, t);
         }
       });
-      for (size_t i = 0; i < touched_.size(); ++i) FoldCell(i);
     } else {
-      // One thread: each cell is folded right after it is applied, while its changes are in
-      // the cache; the order of the folds (touched_) is the same.
+      // One thread: the same, on this thread (the order of the folds, touched_, is the same).
       witnessed_.resize(1);
+      witnessed_[0].clear();
       for (size_t i = 0; i < touched_.size(); ++i) {
         if (i + 2 < touched_.size()) Prefetch(cells_[touched_[i + 2]].get());
         if (i + 1 < touched_.size()) PrefetchCell(*cells_[touched_[i + 1]]);
-        witnessed_[0].clear();
         ApplyCell(i, 0);
-        FoldCell(i);
       }
     }
+    FoldCells();
     touched_.clear();
   }
 
@@ -946,14 +944,48 @@ class GridCore {
     }
   }
 
-  // Folds touched_[i]'s changes into the witness counts; recycles it if it emptied.
+  // Folds every applied cell's changes into the witness counts, in the order of touched_, and
+  // recycles the cells that emptied. The pairs land all over the tracker's sets and the witness
+  // table: the lines a change probes are prefetched kFoldAhead changes ahead (across cells).
+  void FoldCells() {
+    static constexpr size_t kFoldAhead = 16;
+    const size_t n = touched_.size();
+    size_t ahead_cell = 0;
+    uint32_t ahead_k = 0;
+    auto prefetch_next = [&] {
+      while (ahead_cell < n && ahead_k >= cell_out_[ahead_cell].count) {
+        ++ahead_cell;
+        ahead_k = 0;
+      }
+      if (ahead_cell == n) return;
+      const CellOut& co = cell_out_[ahead_cell];
+      const Witnessed& w = witnessed_[co.thread][co.begin + ahead_k++];
+      const uint64_t p = HandlePair(w.a, w.b);
+      if (const void* line = tracker_.OverlapLine(p)) Prefetch(line);
+      if (const void* line = tracker_.ChangedLine(p)) Prefetch(line);
+      if (!w.now) {
+        if (const void* line = extra_.HomeLine(p)) Prefetch(line);
+      }
+    };
+    for (size_t k = 0; k < kFoldAhead; ++k) prefetch_next();
+    for (size_t i = 0; i < n; ++i) {
+      const CellOut& co = cell_out_[i];
+      const Witnessed* w = witnessed_[co.thread].data() + co.begin;
+      for (uint32_t k = 0; k < co.count; ++k) {
+        prefetch_next();
+        Witness(w[k].a, w[k].b, w[k].now);
+      }
+      FoldCell(i);
+    }
+  }
+
+  // Adds touched_[i]'s counters (its changes are folded by FoldCells); recycles it if it
+  // emptied.
   void FoldCell(size_t i) {
     const CellOut& co = cell_out_[i];
     swaps_ += co.swaps;
     tests_ += co.tests;
     global_ = global_ || co.global_sort;
-    const Witnessed* w = witnessed_[co.thread].data() + co.begin;
-    for (uint32_t k = 0; k < co.count; ++k) Witness(w[k].a, w[k].b, w[k].now);
     if (co.emptied) {
       const uint32_t idx = touched_[i];
       GridCell& cell = *cells_[idx];

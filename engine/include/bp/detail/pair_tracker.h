@@ -115,6 +115,10 @@ class PairTracker {
   void ForEachOverlap(F&& f) const {
     overlaps_.ForEach([&](uint64_t p) { f(PairFirst(p), PairSecond(p)); });
   }
+  /// Where Add or Remove of pair p starts probing the overlap set and the changed set (nullptr
+  /// when empty), for the caller to prefetch a few pairs ahead.
+  const void* OverlapLine(uint64_t p) const { return overlaps_.HomeLine(p); }
+  const void* ChangedLine(uint64_t p) const { return changed_.HomeLine(p); }
   size_t overlaps() const { return overlaps_.size(); }
   size_t pending_changes() const { return changed_.size(); }
   const FlatSet<uint64_t>& overlap_set() const { return overlaps_; }
