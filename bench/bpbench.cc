@@ -13,6 +13,7 @@
 //   bpbench --engine grid_segmented_sap|grid_batch_sap [--cell-size X | --objects-per-cell N]
 //   bpbench --figure 10|11                    the paper's multi-cell figures: grids and octree
 #include <algorithm>
+#include <array>
 #include <cinttypes>
 #include <cmath>
 #include <cstdint>
@@ -82,7 +83,20 @@ struct Result {
   // fat boxes, over all frames of the first run.
   uint64_t false_pos = 0, false_neg = 0, fat_skips = 0, error_frames = 0;
   bp::Stats last;  // the engine's counters after the last frame of the last run
+  // Per frame (all repeats), the frame's phases in milliseconds: kPhaseNames order.
+  std::array<std::vector<double>, 7> phase_ms;
 };
+
+// The phases of a frame that bpbench reports (median of each over the frames): the client's
+// calls (timed by the scene runner), then the engine's query by Stats (route, cells and fold are
+// the grid's parts of core).
+constexpr std::array<const char*, 7> kPhaseNames = {"calls", "prepare", "core",  "route",
+                                                    "cells", "fold",    "events"};
+void AddPhases(double calls_ms, const bp::Stats& s, Result* r) {
+  const std::array<double, 7> v = {calls_ms,   s.prepare_ms, s.core_ms,  s.route_ms,
+                                   s.cells_ms, s.fold_ms,    s.events_ms};
+  for (size_t i = 0; i < v.size(); ++i) r->phase_ms[i].push_back(v[i]);
+}
 
 bool IsGrid(const Config& cfg) { return cfg.engine.rfind("grid_", 0) == 0; }
 
@@ -248,6 +262,7 @@ Result RunTyped(const SceneParams& params, int frames, const Config& cfg,
     for (int f = 1; f <= frames; ++f) {
       run.push_back(runner.Step());
       bp::Stats s = engine->GetStats();
+      AddPhases(runner.calls_ms(), s, &r);
       if (exact_runner) {
         exact_runner->Step();
         std::vector<uint64_t> got = SortedPairs(*engine), want = SortedPairs(*exact);
@@ -382,6 +397,18 @@ void PrintJson(const std::string& scenario, const SceneParams& p, int frames, co
     << ",\"tests_per_frame\":" << static_cast<double>(r.tests) / frames_total
     << ",\"global_frames\":" << r.global_frames << ",\"local_frames\":" << r.local_frames
     << ",\"errors\":" << r.errors;
+  if (!r.phase_ms[0].empty()) {
+    // Medians per phase: where a frame goes (they need not add up to median_ms exactly).
+    o << ",\"phases_ms\":{";
+    bool first = true;
+    for (size_t i = 0; i < kPhaseNames.size(); ++i) {
+      const bool grid_part = i >= 3 && i <= 5;
+      if (grid_part && !IsGrid(cfg)) continue;
+      o << (first ? "" : ",") << "\"" << kPhaseNames[i] << "\":" << Quantile(r.phase_ms[i], 0.5);
+      first = false;
+    }
+    o << "}";
+  }
   if (golden != nullptr && frames == static_cast<int>(golden->frames)) {
     bool ok = r.pairs0 == golden->pairs_frame0 && r.pairs == golden->pairs_end &&
               r.collides == golden->collides && r.uncollides == golden->uncollides &&

@@ -16,6 +16,8 @@
 #include "test_support.h"
 #include <gtest/gtest.h>
 
+#include "bp/scene_runner.h"
+#include "bp/segmented_sap.h"
 #include "bp/workload.h"
 
 namespace bp {
@@ -375,6 +377,44 @@ TEST(Grid, ThreadCountDoesNotChangeEvents) {
   }
 }
 
+// Stats time a query by phase: the front end's prepare, core and events for every keyed engine,
+// and the grid's route, cells and fold within core (with one thread and with a pool); the
+// scene runner times the client's calls before the query.
+TEST(Grid, StatsTimeTheQueryPhases) {
+  workload::SceneParams params;
+  params.n = 3000;
+  params.moving = 600;
+  params.churn = 40;
+  auto check = [&](Broadphase<3, float>& engine, bool grid) {
+    workload::SceneRunner<3, float> runner(engine, params);
+    runner.Build();
+    for (int frame = 0; frame < 3; ++frame) {
+      runner.Step();
+      const Stats s = engine.GetStats();
+      EXPECT_GT(runner.calls_ms(), 0.0);
+      EXPECT_GT(s.prepare_ms, 0.0);
+      EXPECT_GT(s.core_ms, 0.0);
+      EXPECT_GT(s.events_ms, 0.0);
+      if (!grid) {
+        EXPECT_EQ(s.route_ms + s.cells_ms + s.fold_ms, 0.0);
+        continue;
+      }
+      EXPECT_GT(s.route_ms, 0.0);
+      EXPECT_GT(s.cells_ms, 0.0);
+      EXPECT_GT(s.fold_ms, 0.0);
+      EXPECT_LE(s.route_ms + s.cells_ms + s.fold_ms, s.core_ms);  // laps within core's span
+    }
+  };
+  for (unsigned threads : {1u, 2u}) {
+    GridDenseOptions options;
+    options.threads = threads;
+    GridDense<3, float> grid(options);
+    check(grid, true);
+  }
+  SegmentedSap<3, float> sap;
+  check(sap, false);
+}
+
 // The dense cell's AVX-512 kernel against its portable one, directly on cells: random boxes on a
 // small lattice (many exact touches and equal coordinates), random erases, updates and inserts,
 // few and many changes per query (both paths of FindChanges), every change list compared.
@@ -550,7 +590,7 @@ TEST(Grid, ObjectTurningLargeMidQuerySeesObjectsThatEnteredCellsBefore) {
     twin.Update(1, Cube<3, float>(9.5f, 1));  // migrates into cells nobody held
     twin.Erase(2);
     twin.Insert(2, Cube<3, float>(13, 1));
-    twin.Update(3, Cube<3, float>(0, 30));   // turns large over both
+    twin.Update(3, Cube<3, float>(0, 30));  // turns large over both
     twin.Update(4, Cube<3, float>(17, 1));  // migrates after it
     twin.Insert(9, Cube<3, float>(21, 1));  // inserted after it
     twin.Query();

@@ -64,6 +64,14 @@ struct Stats {
   size_t pool_routed = 0;    ///< updates of the last query routed on the pool (grid only)
   double margin = 0;         ///< the fattened boxes' margin (0: exact boxes)
   size_t fat_skips = 0;      ///< updates of the last query absorbed by a fat box
+  // Wall time of the last query by phase, in milliseconds; 0 where an engine has no such phase.
+  // The client's calls before the query (Insert, Update, Erase) are not in any of them.
+  double prepare_ms = 0;  ///< front end: the queued calls turned into the core's batch
+  double core_ms = 0;     ///< the core: its structures updated and its changed pairs found
+  double route_ms = 0;    ///< grid, within core_ms: objects routed to their cells (and large ones)
+  double cells_ms = 0;    ///< grid, within core_ms: the touched cells applied (on its pool)
+  double fold_ms = 0;     ///< grid, within core_ms: the cells' changes folded into witness counts
+  double events_ms = 0;   ///< front end: changed pairs drained, keyed, sorted and delivered
 };
 
 /// One item of Broadphase::UpdateMany: a key and its new box.

@@ -69,6 +69,7 @@
 #include "bp/detail/flat_set.h"
 #include "bp/detail/keyed_engine.h"
 #include "bp/detail/pair_tracker.h"
+#include "bp/detail/stopwatch.h"
 #include "bp/detail/sweep.h"
 #include "bp/detail/worker_pool.h"
 #include "bp/segmented_sap.h"
@@ -137,6 +138,8 @@ class GridCore {
       placed_ = true;
     }
     defer_locals_ = large_count_ == 0;
+    phase_ = Stopwatch();
+    route_ms_ = cells_ms_ = fold_ms_ = 0;
     EraseObjects(erases);
     RouteUpdates(updates);
     InsertObjects(inserts);
@@ -145,6 +148,7 @@ class GridCore {
       if (large_[l].handle != kNone) Rescan(l);
     }
     changed_large_.clear();
+    route_ms_ += phase_.Lap();
     QueryCells();
     live_ = live_ + inserts.size() - erases.size();
     MaybeResize();
@@ -166,6 +170,9 @@ class GridCore {
     out->threads = pool_ != nullptr ? pool_->threads() : 1;
     out->worker_cells = pool_ != nullptr ? pool_->last_on_workers() : 0;
     out->pool_routed = pool_routed_;
+    out->route_ms = route_ms_;
+    out->cells_ms = cells_ms_;
+    out->fold_ms = fold_ms_;
     out->chunks = 0;
     out->cell_slots = 0;
     for (const auto& c : cells_) {
@@ -858,7 +865,9 @@ class GridCore {
         ApplyCell(i, 0);
       }
     }
+    cells_ms_ += phase_.Lap();
     FoldCells();
+    fold_ms_ += phase_.Lap();
     touched_.clear();
   }
 
@@ -1218,6 +1227,7 @@ class GridCore {
       Rescan(l);
     }
     changed_large_.clear();
+    route_ms_ += phase_.Lap();  // a rebuild's routing (its cells and fold lap in QueryCells)
     QueryCells();
     recount_ = false;
     BP_ASSERT(recount_seen_.size() == tracker_.overlaps());
@@ -1312,6 +1322,8 @@ class GridCore {
   // Counters of the last query.
   size_t swaps_ = 0, tests_ = 0, cells_queried_ = 0, pool_routed_ = 0;
   bool global_ = false, rebuilt_ = false;
+  Stopwatch phase_;  // laps the phases of Apply: route_ms_, cells_ms_, fold_ms_ (Stats)
+  double route_ms_ = 0, cells_ms_ = 0, fold_ms_ = 0;
 };
 
 }  // namespace detail

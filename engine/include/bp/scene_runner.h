@@ -50,6 +50,7 @@ class SceneRunner {
     for (const SceneBox& b : ops_.inserts) {
       Check(engine_.Insert(b.id, Convert(b), Options(b)), b.id);
     }
+    calls_ms_ = Ms(start);
     engine_.Query(sink_);
     double ms = Ms(start);
     collides_ += sink_.collides - collides;
@@ -66,6 +67,8 @@ class SceneRunner {
   uint64_t set_hash() const { return sink_.hash.value(); }
   uint64_t chain() const { return chain_.value(); }
   uint64_t frames() const { return frames_; }
+  /// Milliseconds of the last Step's calls before its query (erases, updates, inserts).
+  double calls_ms() const { return calls_ms_; }
   /// Calls the engine refused (must stay 0), and the first refusal.
   uint64_t errors() const { return errors_; }
   const std::string& first_error() const { return first_error_; }
@@ -114,6 +117,7 @@ class SceneRunner {
   uint64_t collides_ = 0;
   uint64_t uncollides_ = 0;
   uint64_t frames_ = 0;
+  double calls_ms_ = 0;
   uint64_t errors_ = 0;
   std::string first_error_;
 };

@@ -52,6 +52,7 @@
 #include "bp/detail/assert.h"
 #include "bp/detail/key_index.h"
 #include "bp/detail/pair_tracker.h"
+#include "bp/detail/stopwatch.h"
 #include "bp/object_options.h"
 
 namespace bp::detail {
@@ -160,6 +161,7 @@ class KeyedEngine final : public Broadphase<Core::kDim, typename Core::Coord, Ke
   }
 
   void Query(EventSink<Key>& sink) override {
+    Stopwatch phase;
     erases_.clear();
     updates_.clear();
     inserts_.clear();
@@ -202,7 +204,9 @@ class KeyedEngine final : public Broadphase<Core::kDim, typename Core::Coord, Ke
       slot.pending = Pending::kNone;
     }
     queue_.clear();
+    prepare_ms_ = phase.Lap();
     core_.Apply(erases_, updates_, inserts_);
+    core_ms_ = phase.Lap();
 
     // The changed pairs' handles, then their keys: the slots of a frame's pairs lie all over
     // the table, so they are prefetched kKeysAhead pairs ahead.
@@ -260,6 +264,7 @@ class KeyedEngine final : public Broadphase<Core::kDim, typename Core::Coord, Ke
     }
     for (const auto& [a, b] : uncollides_) sink.Uncollide(a, b);
     for (const auto& [a, b] : collides_) sink.Collide(a, b);
+    events_ms_ = phase.Lap();
   }
 
   void ForEachOverlap(const std::function<void(const Key&, const Key&)>& f) const override {
@@ -294,6 +299,9 @@ class KeyedEngine final : public Broadphase<Core::kDim, typename Core::Coord, Ke
     s.uncollides = uncollides_.size();
     s.margin = static_cast<double>(margin_);
     s.fat_skips = last_fat_skips_;
+    s.prepare_ms = prepare_ms_;
+    s.core_ms = core_ms_;
+    s.events_ms = events_ms_;
     return s;
   }
 
@@ -520,6 +528,7 @@ class KeyedEngine final : public Broadphase<Core::kDim, typename Core::Coord, Ke
   bool rekeyed_ = false;  // a key took a fresh handle since the last query
   size_t fat_skips_ = 0;  // updates absorbed by fat boxes since the last query
   size_t last_fat_skips_ = 0;
+  double prepare_ms_ = 0, core_ms_ = 0, events_ms_ = 0;  // the last query's phases (Stats)
   std::vector<Slot> slots_;
   KeyIndex<Key> index_;  // key -> handle (see invariant 1)
   std::vector<uint32_t> free_;
