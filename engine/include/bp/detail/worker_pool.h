@@ -15,6 +15,7 @@
 
 #include <algorithm>
 #include <atomic>
+#include <chrono>
 #include <condition_variable>
 #include <cstddef>
 #include <cstdint>
@@ -36,7 +37,7 @@ class WorkerPool {
   ~WorkerPool() {
     {
       std::lock_guard<std::mutex> lock(mutex_);
-      stop_ = true;
+      stop_.store(true, std::memory_order_relaxed);
     }
     wake_.notify_all();
     for (std::thread& t : workers_) t.join();
@@ -68,17 +69,34 @@ class WorkerPool {
       n_ = n;
       grain_ = std::max<size_t>(grain, 1);
       next_.store(0, std::memory_order_relaxed);
-      busy_ = workers_.size();
-      ++generation_;
+      busy_.store(workers_.size(), std::memory_order_relaxed);
+      generation_.fetch_add(1, std::memory_order_release);
     }
     wake_.notify_all();
     Run(body, n, 0);
+    SpinWhile([this] { return busy_.load(std::memory_order_acquire) != 0; });
     std::unique_lock<std::mutex> lock(mutex_);
-    done_.wait(lock, [this] { return busy_ == 0; });
+    done_.wait(lock, [this] { return busy_.load(std::memory_order_relaxed) == 0; });
     body_ = nullptr;
   }
 
  private:
+  // How long a thread polls before it blocks: a worker between two loops of a frame, the caller
+  // for the workers' last runs. Waking a blocked thread takes tens of microseconds on a virtual
+  // machine (a futex and an interrupt to the other CPU), which a late worker costs the caller
+  // when the loop's runs are few; polling costs the other CPU at most this long per loop.
+  static constexpr std::chrono::microseconds kSpin{1000};
+  template <class Busy>
+  static void SpinWhile(Busy&& busy) {
+    const auto until = std::chrono::steady_clock::now() + kSpin;
+    for (unsigned i = 1; busy(); ++i) {
+#if defined(__x86_64__) || defined(__i386__)
+      __builtin_ia32_pause();
+#endif
+      if (i % 64 == 0 && std::chrono::steady_clock::now() > until) return;
+    }
+  }
+
   // Runs indices until none is left; returns how many this thread ran.
   size_t Run(const Body& body, size_t n, unsigned thread) {
     size_t ran = 0;
@@ -96,18 +114,25 @@ class WorkerPool {
     for (;;) {
       const Body* body;
       size_t n;
+      SpinWhile([&] {
+        return generation_.load(std::memory_order_acquire) == seen &&
+               !stop_.load(std::memory_order_relaxed);
+      });
       {
         std::unique_lock<std::mutex> lock(mutex_);
-        wake_.wait(lock, [&] { return stop_ || generation_ != seen; });
-        if (stop_) return;
-        seen = generation_;
+        wake_.wait(lock, [&] {
+          return stop_.load(std::memory_order_relaxed) ||
+                 generation_.load(std::memory_order_relaxed) != seen;
+        });
+        if (stop_.load(std::memory_order_relaxed)) return;
+        seen = generation_.load(std::memory_order_relaxed);
         body = body_;
         n = n_;
       }
       on_workers_.fetch_add(Run(*body, n, thread), std::memory_order_relaxed);
       {
         std::lock_guard<std::mutex> lock(mutex_);
-        --busy_;
+        busy_.fetch_sub(1, std::memory_order_release);
       }
       done_.notify_one();
     }
@@ -122,9 +147,11 @@ class WorkerPool {
   size_t grain_ = 1;
   std::atomic<size_t> next_{0};
   std::atomic<size_t> on_workers_{0};
-  size_t busy_ = 0;
-  uint64_t generation_ = 0;
-  bool stop_ = false;
+  // Written under mutex_ (so that a blocked waiter misses no change); atomic so that a spinning
+  // thread may read them without it.
+  std::atomic<size_t> busy_{0};
+  std::atomic<uint64_t> generation_{0};
+  std::atomic<bool> stop_{false};
 };
 
 }  // namespace bp::detail

@@ -1,0 +1,72 @@
+// bp::detail::WorkerPool: every index runs exactly once per loop, on a thread ordinal below
+// threads(), whether the workers are still polling from the last loop (loops back to back) or
+// have blocked (a pause longer than the poll between loops), and the pool stops cleanly in
+// either state.
+#include "bp/detail/worker_pool.h"
+
+#include <atomic>
+#include <chrono>
+#include <cstddef>
+#include <thread>
+#include <vector>
+
+#include <gtest/gtest.h>
+
+namespace bp::test {
+namespace {
+
+// Runs `loops` loops of n indices with the given grain, pausing `pause` between loops; checks
+// each index ran once and every thread ordinal is valid. Returns the indices the workers ran.
+size_t RunLoops(detail::WorkerPool& pool, int loops, size_t n, size_t grain,
+                std::chrono::microseconds pause) {
+  size_t on_workers = 0;
+  std::vector<std::atomic<int>> hits(n);
+  for (int loop = 0; loop < loops; ++loop) {
+    for (auto& h : hits) h.store(0, std::memory_order_relaxed);
+    std::atomic<bool> bad_thread{false};
+    pool.ParallelFor(n, grain, [&](size_t begin, size_t end, unsigned thread) {
+      if (thread >= pool.threads() || begin >= end || end > n) bad_thread = true;
+      for (size_t i = begin; i < end; ++i) hits[i].fetch_add(1, std::memory_order_relaxed);
+    });
+    EXPECT_FALSE(bad_thread.load());
+    size_t wrong = 0;
+    for (size_t i = 0; i < n; ++i) wrong += hits[i].load() == 1 ? 0u : 1u;
+    EXPECT_EQ(wrong, 0u) << "loop " << loop << ": indices not run exactly once";
+    on_workers += pool.last_on_workers();
+    if (pause.count() > 0) std::this_thread::sleep_for(pause);
+  }
+  return on_workers;
+}
+
+TEST(WorkerPool, EveryIndexOnceWhetherWorkersPollOrSleep) {
+  for (unsigned threads : {1u, 2u, 4u}) {
+    detail::WorkerPool pool(threads);
+    EXPECT_EQ(pool.threads(), threads);
+    // Back to back: the workers are still polling when the next loop starts.
+    size_t on_workers = RunLoops(pool, 200, 1000, 7, std::chrono::microseconds(0));
+    // Paused longer than the poll: the workers have blocked and are woken.
+    on_workers += RunLoops(pool, 5, 1000, 7, std::chrono::microseconds(5000));
+    if (threads == 1) {
+      EXPECT_EQ(on_workers, 0u);
+    }
+    // Small loops (n < 2 and one run) stay on the caller.
+    RunLoops(pool, 3, 1, 4, std::chrono::microseconds(0));
+    RunLoops(pool, 3, 0, 4, std::chrono::microseconds(0));
+  }
+}
+
+TEST(WorkerPool, StopsWhilePollingAndWhileBlocked) {
+  {
+    detail::WorkerPool pool(3);
+    RunLoops(pool, 2, 100, 1, std::chrono::microseconds(0));
+  }  // destroyed right after a loop: the workers are polling
+  {
+    detail::WorkerPool pool(3);
+    RunLoops(pool, 2, 100, 1, std::chrono::microseconds(0));
+    std::this_thread::sleep_for(std::chrono::milliseconds(5));
+  }                                // destroyed with the workers blocked
+  { detail::WorkerPool pool(2); }  // never used
+}
+
+}  // namespace
+}  // namespace bp::test
