@@ -48,6 +48,16 @@ Outcome Apply(EngineHost& host, const wire::UpdateBatch& batch) {
   return out;
 }
 
+// The (index, reason) of each of out's rejects, every one expected to be of operation op.
+std::vector<std::pair<uint32_t, wire::RejectReason>> RejectsOf(const Outcome& out, wire::Op op) {
+  std::vector<std::pair<uint32_t, wire::RejectReason>> got;
+  for (const Reject& r : out.rejects) {
+    EXPECT_EQ(r.op, op);
+    got.emplace_back(r.index, r.reason);
+  }
+  return got;
+}
+
 wire::UpdateBatch Batch(uint32_t producer, int dim) {
   wire::UpdateBatch b;
   b.set_version(wire::SCHEMA_VERSION_1);
@@ -236,12 +246,7 @@ TEST(EngineHost, UpdateRefusalsComeInIndexOrder) {
   add(33, 99.5, wire::REJECT_REASON_UNSPECIFIED);
   add(1, 102.5, wire::REJECT_REASON_UNSPECIFIED);  // its NaN was refused; onto 34 (102..103)
   Outcome out = Apply(*host, batch);
-  std::vector<std::pair<uint32_t, wire::RejectReason>> got;
-  for (const Reject& r : out.rejects) {
-    EXPECT_EQ(r.op, wire::OP_UPDATE);
-    got.emplace_back(r.index, r.reason);
-  }
-  EXPECT_EQ(got, want);
+  EXPECT_EQ(RejectsOf(out, wire::OP_UPDATE), want);
   EXPECT_EQ(out.counts.updates, 33u);
   EXPECT_EQ(out.counts.rejected, want.size());
   host->Query(&unc, &col);  // the kept updates applied, the refused ones not
@@ -279,12 +284,7 @@ TEST(EngineHost, EraseRefusalsComeInIndexOrder) {
   erase(101, wire::UNKNOWN_ID);
   erase(33, wire::REJECT_REASON_UNSPECIFIED);
   Outcome out = Apply(*host, batch);
-  std::vector<std::pair<uint32_t, wire::RejectReason>> got;
-  for (const Reject& r : out.rejects) {
-    EXPECT_EQ(r.op, wire::OP_ERASE);
-    got.emplace_back(r.index, r.reason);
-  }
-  EXPECT_EQ(got, want);
+  EXPECT_EQ(RejectsOf(out, wire::OP_ERASE), want);
   EXPECT_EQ(out.counts.erases, 17u);
   EXPECT_EQ(out.counts.rejected, want.size());
   EXPECT_EQ(host->Objects(), 23u);

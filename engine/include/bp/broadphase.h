@@ -69,7 +69,7 @@ struct Stats {
   double prepare_ms = 0;  ///< front end: the queued calls turned into the core's batch
   double core_ms = 0;     ///< the core: its structures updated and its changed pairs found
   double route_ms = 0;    ///< grid, within core_ms: objects routed to their cells (and large ones)
-  double cells_ms = 0;    ///< grid, within core_ms: the touched cells applied (on its pool)
+  double cells_ms = 0;    ///< grid, within core_ms: work grouped by cell, cells applied (pool)
   double fold_ms = 0;     ///< grid, within core_ms: the cells' changes folded into witness counts
   double events_ms = 0;   ///< front end: changed pairs drained, keyed, sorted and delivered
 };

@@ -600,12 +600,18 @@ class GridCore {
       uint32_t& ref_at = routed_insert_refs_[k];
       if (ref_at == kNone) continue;
       Routed& r = routed_inserts_[k];
-      const uint32_t local = AllocLocal(*cells_[r.cell], r.update.handle);
-      refs_[ref_at].local = local;
-      r.update.handle = local;
+      r.update.handle = ClaimLocal(*cells_[r.cell], r.update.handle, ref_at);
       ref_at = kNone;
     }
     defer_locals_ = false;
+  }
+
+  // Allocates global handle h's local handle in cell, for an insert whose local was deferred,
+  // and writes it into the object's reference to the cell (refs_[ref_at]); returns it.
+  uint32_t ClaimLocal(GridCell& cell, uint32_t h, uint32_t ref_at) {
+    const uint32_t local = AllocLocal(cell, h);
+    refs_[ref_at].local = local;
+    return local;
   }
 
   void LeaveCells(uint32_t h) {
@@ -890,10 +896,7 @@ class GridCore {
     // writes its object's reference to this cell, which no other cell's thread writes.
     const uint32_t* ref_at = grouped_insert_refs_.data() + work.insert_begin;
     for (size_t k = 0; k < inserts.size(); ++k) {
-      if (ref_at[k] == kNone) continue;
-      const uint32_t local = AllocLocal(cell, inserts[k].handle);
-      refs_[ref_at[k]].local = local;
-      inserts[k].handle = local;
+      if (ref_at[k] != kNone) inserts[k].handle = ClaimLocal(cell, inserts[k].handle, ref_at[k]);
     }
     cell.members = cell.members + work.inserts - work.erases;
     cell.core.Apply(erases, std::span(grouped_.data() + work.begin, work.updates), inserts);

@@ -135,13 +135,8 @@ class KeyedEngine final : public Broadphase<Core::kDim, typename Core::Coord, Ke
   size_t UpdateMany(std::span<const typename Base::Item> items,
                     const typename Base::RefusedFn& refused = nullptr) override {
     return ForEachAhead(
-        items, [](const typename Base::Item& item) -> const Key& { return item.key; },
-        [&](size_t i, uint32_t tag) {
-          const Status s = UpdateTagged(items[i].key, tag, items[i].box);
-          if (s.ok()) return true;
-          if (refused) refused(i, s);
-          return false;
-        });
+        items, [](const typename Base::Item& item) -> const Key& { return item.key; }, refused,
+        [&](size_t i, uint32_t tag) { return UpdateTagged(items[i].key, tag, items[i].box); });
   }
 
   Status Erase(const Key& key) override { return EraseTagged(key, KeyIndex<Key>::Tag(key)); }
@@ -151,13 +146,8 @@ class KeyedEngine final : public Broadphase<Core::kDim, typename Core::Coord, Ke
   size_t EraseMany(std::span<const Key> keys,
                    const typename Base::RefusedFn& refused = nullptr) override {
     return ForEachAhead(
-        keys, [](const Key& key) -> const Key& { return key; },
-        [&](size_t i, uint32_t tag) {
-          const Status s = EraseTagged(keys[i], tag);
-          if (s.ok()) return true;
-          if (refused) refused(i, s);
-          return false;
-        });
+        keys, [](const Key& key) -> const Key& { return key; }, refused,
+        [&](size_t i, uint32_t tag) { return EraseTagged(keys[i], tag); });
   }
 
   void Query(EventSink<Key>& sink) override {
@@ -369,9 +359,11 @@ class KeyedEngine final : public Broadphase<Core::kDim, typename Core::Coord, Ke
   // of the item kAhead ahead and the slot its entry names kAhead / 2 ahead prefetched (in a
   // large scene both are cache misses, which a plain loop waits for one after the other). Each
   // key's tag is computed once, kAhead items ahead, and kept in a ring until its item's turn.
-  // Returns the number of items apply refused (returned false for).
+  // apply returns the item's Status; a refused item is passed to refused (when set) with its
+  // index. Returns the number refused.
   template <class Item, class KeyOf, class Apply>
-  size_t ForEachAhead(std::span<const Item> items, KeyOf&& key_of, Apply&& apply) {
+  size_t ForEachAhead(std::span<const Item> items, KeyOf&& key_of,
+                      const typename Base::RefusedFn& refused, Apply&& apply) {
     constexpr size_t kAhead = 16;
     uint32_t tags[kAhead];
     const size_t n = items.size();
@@ -396,7 +388,10 @@ class KeyedEngine final : public Broadphase<Core::kDim, typename Core::Coord, Ke
         tags[i % kAhead] = ahead;
         if (const void* line = index_.HomeLine(ahead)) __builtin_prefetch(line);
       }
-      if (!apply(i, tag)) ++count;
+      const Status s = apply(i, tag);
+      if (s.ok()) continue;
+      ++count;
+      if (refused) refused(i, s);
     }
     return count;
   }
