@@ -3,13 +3,19 @@
 //  - "alu": eight independent integer multiply-add chains (bound by the core's execution units:
 //    two vCPUs that are hyper-threads of one core give about 1x, two cores about 2x);
 //  - "chase": eight independent random walks over a 256 MB table (bound by memory latency and
-//    the misses a core keeps in flight: what a broadphase frame mostly waits on).
+//    the misses a core keeps in flight: what a broadphase frame mostly waits on);
+//  - "gather": random 64-byte lines of the table read with a prefetch 16 reads ahead, as the
+//    grid routes its updates (bound by the misses the memory system serves at once);
+//  - "scatter": the same lines read, changed and written back, as routing stores each moved
+//    object's box (each line also costs a write-back).
 // The README quotes it next to the grid's two-thread ratios: if the machine scales and the
 // engine does not, the engine's serial part is the bound.
+#include <atomic>
 #include <chrono>
 #include <cstdint>
 #include <cstdio>
 #include <functional>
+#include <iterator>
 #include <string>
 #include <thread>
 #include <vector>
@@ -37,6 +43,25 @@ uint64_t Chase(const std::vector<uint32_t>& next, uint64_t rounds) {
   }
   uint64_t s = 0;
   for (uint32_t v : p) s += v;
+  return s;
+}
+
+// Reads (and with write, changes) `count` random lines of `table` from a stream of hashed
+// indices, each prefetched 16 accesses ahead.
+uint64_t Lines(std::vector<uint32_t>& table, uint64_t count, uint64_t seed, bool write) {
+  const uint64_t lines = table.size() / 16;
+  auto line = [&](uint64_t i) {
+    uint64_t z = (seed + i) * 0x9E3779B97F4A7C15ull;
+    z = (z ^ (z >> 31)) * 0xBF58476D1CE4E5B9ull;
+    return (z ^ (z >> 29)) % lines * 16;
+  };
+  uint64_t s = 0;
+  for (uint64_t i = 0; i < count; ++i) {
+    __builtin_prefetch(&table[line(i + 16)], write ? 1 : 0);
+    uint32_t* p = &table[line(i)];
+    s += p[0] + p[15];
+    if (write) p[1] += 1;
+  }
   return s;
 }
 
@@ -75,11 +100,14 @@ int main(int argc, char** argv) {
     x ^= x << 17;
     std::swap(next[i], next[x % i]);
   }
-  const std::function<uint64_t()> kernels[] = {[] { return Alu(uint64_t{200} << 20); },
-                                               [&] { return Chase(next, uint64_t{4} << 20); }};
-  const char* names[] = {"alu", "chase"};
+  std::atomic<uint64_t> seed{1};
+  const std::function<uint64_t()> kernels[] = {
+      [] { return Alu(uint64_t{200} << 20); }, [&] { return Chase(next, uint64_t{4} << 20); },
+      [&] { return Lines(next, uint64_t{16} << 20, seed.fetch_add(uint64_t{1} << 40), false); },
+      [&] { return Lines(next, uint64_t{16} << 20, seed.fetch_add(uint64_t{1} << 40), true); }};
+  const char* names[] = {"alu", "chase", "gather", "scatter"};
   for (unsigned r = 0; r < repeats; ++r) {
-    for (size_t k = 0; k < 2; ++k) {
+    for (size_t k = 0; k < std::size(kernels); ++k) {
       const double one = Run(1, kernels[k]);
       const double many = Run(threads, kernels[k]);
       std::printf(

@@ -425,6 +425,10 @@ class GridDensePortableDiff : public DifferentialTest<C> {};
 template <class C>
 class GridDensePortableTinyCells : public DifferentialTest<C> {};
 template <class C>
+class GridDenseRowsDiff : public DifferentialTest<C> {};
+template <class C>
+class GridDenseSmallMatrixDiff : public DifferentialTest<C> {};
+template <class C>
 class GridThreadedDense : public DifferentialTest<C> {};
 template <class C>
 class GridThreadedSegmented : public DifferentialTest<C> {};
@@ -478,6 +482,12 @@ TYPED_TEST_SUITE(GridDenseDiff, GridDenseShapes);
 TYPED_TEST_SUITE(GridDenseTinyCells, GridDenseTinyShapes);
 TYPED_TEST_SUITE(GridDensePortableDiff, GridDensePortableShapes);
 TYPED_TEST_SUITE(GridDensePortableTinyCells, GridDensePortableTinyShapes);
+// Dense cells without the pair matrix (then and now tested on the rows), and with it capped at
+// 32 slots, so that cells growing and shrinking around it drop and rebuild it.
+using GridDenseRowsShapes = AllShapes<MakeGrid<CellKind::kDenseRows, 0>>;
+using GridDenseSmallMatrixShapes = AllShapes<MakeGrid<CellKind::kDenseSmallMatrix, 0>>;
+TYPED_TEST_SUITE(GridDenseRowsDiff, GridDenseRowsShapes);
+TYPED_TEST_SUITE(GridDenseSmallMatrixDiff, GridDenseSmallMatrixShapes);
 // Cells applied by a pool of 3 (dense, automatic size: few large objects, so most queries route
 // their updates on the pool too) and 2 threads (segmented, tiny cells: many touched cells,
 // migrations and large objects per query): the oracle's events, whatever the split.
@@ -513,6 +523,8 @@ BP_DIFFERENTIAL_TESTS(GridDenseDiff)
 BP_DIFFERENTIAL_TESTS(GridDenseTinyCells)
 BP_DIFFERENTIAL_TESTS(GridDensePortableDiff)
 BP_DIFFERENTIAL_TESTS(GridDensePortableTinyCells)
+BP_DIFFERENTIAL_TESTS(GridDenseRowsDiff)
+BP_DIFFERENTIAL_TESTS(GridDenseSmallMatrixDiff)
 BP_DIFFERENTIAL_TESTS(GridThreadedDense)
 BP_DIFFERENTIAL_TESTS(GridThreadedSegmented)
 BP_DIFFERENTIAL_TESTS(DynamicOctreeDiff)

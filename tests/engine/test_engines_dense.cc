@@ -1,5 +1,5 @@
-// Grids of dense cells (AVX-512 kernel where the CPU has it, or the portable one) for
-// test_support.h, built once per shape.
+// Grids of dense cells (AVX-512 kernel where the CPU has it, or the portable one; the pair
+// matrix as by default, never, or capped low) for test_support.h, built once per shape.
 #include "test_support.h"
 
 namespace bp::test {
@@ -7,7 +7,9 @@ namespace bp::test {
 template <int K, class T>
 std::unique_ptr<Broadphase<K, T>> NewDenseGrid(const GridSpec& spec) {
   auto options = GridOptionsOf<GridDenseOptions>(spec);
-  options.cell.wide_kernel = spec.cell == CellKind::kDense;
+  options.cell.wide_kernel = spec.cell != CellKind::kDensePortable;
+  if (spec.cell == CellKind::kDenseRows) options.cell.matrix_slots = 0;
+  if (spec.cell == CellKind::kDenseSmallMatrix) options.cell.matrix_slots = 32;
   return std::make_unique<GridDense<K, T>>(options);
 }
 

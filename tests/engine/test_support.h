@@ -110,8 +110,15 @@ struct EngineConfig {
 // that a test which sees them only as Broadphase<K, T> does not compile every engine again: under
 // ASan the typed suites took half an hour to build when each of them did.
 /// The cell type of a test grid (kDensePortable: dense cells forced onto the portable kernel, so
-/// that a CPU with AVX-512 checks both kernels).
-enum class CellKind { kSegmented, kBatch, kDense, kDensePortable };
+/// that a CPU with AVX-512 checks both kernels; kDenseRows: dense cells that never keep a pair
+/// matrix; kDenseSmallMatrix: dense cells whose matrix is capped at 32 slots, so that cells
+/// cross between the two modes).
+enum class CellKind { kSegmented, kBatch, kDense, kDensePortable, kDenseRows, kDenseSmallMatrix };
+/// True iff the kind is one of dense cells.
+constexpr bool IsDense(CellKind kind) {
+  return kind == CellKind::kDense || kind == CellKind::kDensePortable ||
+         kind == CellKind::kDenseRows || kind == CellKind::kDenseSmallMatrix;
+}
 
 /// A grid for the tests: its cell type, cell size (0: automatic), the most cells an object may
 /// span before it is kept as a large object, and the pool's threads.
@@ -150,9 +157,7 @@ std::unique_ptr<Broadphase<K, T>> NewDenseGrid(const GridSpec& spec);
 
 template <int K, class T>
 std::unique_ptr<Broadphase<K, T>> NewGrid(const GridSpec& spec) {
-  return spec.cell == CellKind::kDense || spec.cell == CellKind::kDensePortable
-             ? NewDenseGrid<K, T>(spec)
-             : NewSapCellGrid<K, T>(spec);
+  return IsDense(spec.cell) ? NewDenseGrid<K, T>(spec) : NewSapCellGrid<K, T>(spec);
 }
 
 /// The shapes the typed suites run the grids on: 2-D and 3-D; float, double and int32
@@ -212,10 +217,12 @@ struct MakeGrid {
     return NewGrid<K, T>(GridSpec{kCell, kCellTenths / 10.0, kMaxCells, kThreads});
   }
   static std::string Name() {
-    const char* kind = kCell == CellKind::kBatch           ? "GridBatchSap"
-                       : kCell == CellKind::kDense         ? "GridDense"
-                       : kCell == CellKind::kDensePortable ? "GridDensePortable"
-                                                           : "GridSegmentedSap";
+    const char* kind = kCell == CellKind::kBatch              ? "GridBatchSap"
+                       : kCell == CellKind::kDense            ? "GridDense"
+                       : kCell == CellKind::kDensePortable    ? "GridDensePortable"
+                       : kCell == CellKind::kDenseRows        ? "GridDenseRows"
+                       : kCell == CellKind::kDenseSmallMatrix ? "GridDenseSmallMatrix"
+                                                              : "GridSegmentedSap";
     return std::string(kind) + "_s" + std::to_string(kCellTenths) + "_m" +
            std::to_string(kMaxCells) + (kThreads > 1 ? "_t" + std::to_string(kThreads) : "");
   }

@@ -1,7 +1,7 @@
 // bp::detail::WorkerPool: every index runs exactly once per loop, on a thread ordinal below
 // threads(), whether the workers are still polling from the last loop (loops back to back) or
-// have blocked (a pause longer than the poll between loops), and the pool stops cleanly in
-// either state.
+// have blocked (a pause longer than the poll between loops); a worker waking after its loop
+// closed stays out of it; and the pool stops cleanly in either state.
 #include "bp/detail/worker_pool.h"
 
 #include <atomic>
@@ -53,6 +53,31 @@ TEST(WorkerPool, EveryIndexOnceWhetherWorkersPollOrSleep) {
     RunLoops(pool, 3, 1, 4, std::chrono::microseconds(0));
     RunLoops(pool, 3, 0, 4, std::chrono::microseconds(0));
   }
+}
+
+// A loop's body runs only inside its ParallelFor: a worker that wakes after the caller closed
+// the loop (it ran every run itself) must not enter it. Loops with pauses of 0 to 2 ms between
+// them catch the workers polling, blocking and waking at every point; each body call checks that
+// its loop is still in progress, and each index still runs exactly once.
+TEST(WorkerPool, LateWorkersNeverRunAClosedLoop) {
+  detail::WorkerPool pool(3);
+  std::atomic<int> in_loop{-1};
+  std::atomic<int> strays{0};
+  uint64_t x = 12345;
+  for (int loop = 0; loop < 300; ++loop) {
+    x = x * 6364136223846793005ull + 1442695040888963407ull;
+    const size_t n = 1 + (x >> 33) % 40;
+    std::vector<std::atomic<int>> hits(n);
+    in_loop.store(loop);
+    pool.ParallelFor(n, 1 + (x >> 20) % 4, [&](size_t begin, size_t end, unsigned) {
+      if (in_loop.load() != loop) strays.fetch_add(1);
+      for (size_t i = begin; i < end; ++i) hits[i].fetch_add(1);
+    });
+    in_loop.store(-1);
+    for (size_t i = 0; i < n; ++i) ASSERT_EQ(hits[i].load(), 1) << "loop " << loop;
+    std::this_thread::sleep_for(std::chrono::microseconds((x >> 40) % 2000));
+  }
+  EXPECT_EQ(strays.load(), 0);
 }
 
 TEST(WorkerPool, StopsWhilePollingAndWhileBlocked) {

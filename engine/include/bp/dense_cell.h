@@ -13,22 +13,32 @@
 // The cost per changed object is linear in the cell's population: keep the cells small (the
 // grid's objects_per_cell) and prefer SAP cells for scenes whose objects crowd into few cells.
 //
+// "Then" has two forms. A cell of up to DenseCellOptions::matrix_slots slots (all of them on the
+// paper's scenes) keeps its pairs as a bit matrix, slot by slot, so a changed object is tested
+// once, now, and its row of the matrix is "then": on S3 (every object moving) that took a tenth
+// off the frame. A larger cell would pay the matrix's square size: it tests its old box too.
+//
 // Exactness: a pair (a, b) of the cell is reported iff [a and b live then and their old boxes
-// overlapped] differs from [both live now and their new boxes overlap]; a pair of two changed
-// objects is decided once, by the lower slot. Unchanged pairs keep their status. So the
-// cell's reports are exactly the changes of its overlap set, which is what a SAP cell's tracker
-// drains. The differential suite runs the grid over this cell like over the others.
+// overlapped] (with a matrix: its bit) differs from [both live now and their new boxes overlap];
+// a pair of two changed objects is decided once (by the lower slot; with a matrix, by the first
+// of the two in the query's order, whose report flips the bit the second then agrees with).
+// Unchanged pairs keep their status. So the cell's reports are exactly the changes of its
+// overlap set, which is what a SAP cell's tracker drains. The differential suite runs the grid
+// over this cell like over the others, with and without the matrix and across the cap.
 //
 // Thread safety: none; owned by one grid cell (the grid's pool applies each cell on one thread).
 // Invariants (checked by Validate, between queries):
 //  1. size_ is a multiple of kBlock; rows_ holds 2 K size_ coordinates and is_ size_ flags (0/1).
 //  2. live_ is the number of slots with is_[h] set; every live slot's box is valid (lo <= hi);
 //     no change is pending.
+//  3. With matrix_, pairs_ holds size_ rows of size_ / kBlock words and bit (a, b) is set iff
+//     a != b, both are live, their boxes overlap and the filter accepts them; else it is empty.
 #pragma once
 
 #include <algorithm>
 #include <bit>
 #include <cstdint>
+#include <limits>
 #include <span>
 #include <string>
 #include <vector>
@@ -52,6 +62,12 @@ struct DenseCellOptions {
   /// coordinates on x86-64); false, or another CPU or type, takes the portable kernel. Both
   /// give the same events (the differential suite runs each).
   bool wide_kernel = true;
+  /// A cell of up to this many slots keeps its pairs as a bit matrix (slots x slots bits: 32 KiB
+  /// at 512), so a changed object is tested against the cell's boxes once, now, instead of also
+  /// against its old box; a cell that grows beyond it drops the matrix and tests then and now,
+  /// and takes a matrix again once it has at most half as many slots (an empty cell takes one
+  /// at once if its first query leaves it within the cap). 0: never (at most 1024).
+  uint32_t matrix_slots = 512;
 };
 
 namespace detail {
@@ -132,7 +148,9 @@ class DenseCellCore {
   using Options = DenseCellOptions;
 
   explicit DenseCellCore(const Options& options = Options())
-      : options_(options), wide_(kHasWideRows<T> && options.wide_kernel && CpuHasAvx512()) {}
+      : options_(options), wide_(kHasWideRows<T> && options.wide_kernel && CpuHasAvx512()) {
+    options_.matrix_slots = std::min(options_.matrix_slots, kMaxMatrixSlots);
+  }
 
   void Apply(std::span<const uint32_t> erases, std::span<const HandleBox<K, T>> updates,
              std::span<const HandleBox<K, T>> inserts) {
@@ -140,6 +158,13 @@ class DenseCellCore {
     Scratch& s = ThreadScratch();
     s.order.clear();
     s.before.clear();
+    size_t top = size_;
+    for (const auto& hb : inserts) {
+      top = std::max(top, (size_t{hb.handle} + kBlock) / kBlock * kBlock);
+    }
+    BP_ASSERT(top <= std::numeric_limits<uint32_t>::max());
+    ChooseMode(top);
+    if (top > size_) Resize(top);
     for (uint32_t h : erases) {
       BP_ASSERT(h < size_ && is_[h] != 0);
       Mark(s, h, true);
@@ -151,8 +176,7 @@ class DenseCellCore {
       Store(h, box);
     }
     for (const auto& [h, box] : inserts) {
-      Reserve(h);
-      BP_ASSERT(is_[h] == 0);
+      BP_ASSERT(h < size_ && is_[h] == 0);
       Mark(s, h, false);
       is_[h] = 1;
       Store(h, box);
@@ -189,6 +213,8 @@ class DenseCellCore {
   uint32_t slots() const { return size_; }
   /// True iff slot h holds a live object.
   bool holds(uint32_t h) const { return h < size_ && is_[h] != 0; }
+  /// True iff the cell keeps its pairs as a bit matrix (see DenseCellOptions::matrix_slots).
+  bool has_matrix() const { return matrix_; }
 
   /// Gives back trailing blocks that free slots below could absorb: when the live slots and
   /// kCompactSlack free ones fit in fewer blocks, the live slots of the blocks beyond are moved
@@ -209,6 +235,7 @@ class DenseCellCore {
       Store(to, BoxAt(from));
       is_[to] = 1;
       is_[from] = 0;
+      if (matrix_) MoveMatrixSlot(from, to);
       if (options_of_.filtering()) {
         const ObjectOptions o = options_of_.Get(from);
         options_of_.Set(to, o);
@@ -218,12 +245,17 @@ class DenseCellCore {
     Resize(target);
   }
 
-  /// Starts loading the rows and flags a query reads (the grid calls it one cell ahead).
+  /// Starts loading the rows, live flags and change buffer a query reads (the grid calls it two
+  /// cells ahead). Not the matrix: a query reads its changed slots' rows of it only, and loading
+  /// all of it measured no better on S1-200k (0.98 against 0.95 of the build before).
   void Prefetch() const {
     const char* p = reinterpret_cast<const char*>(rows_.data());
     const size_t bytes = rows_.size() * sizeof(T);
     for (size_t off = 0; off < bytes; off += 64) __builtin_prefetch(p + off);
-    if (!is_.empty()) __builtin_prefetch(is_.data());
+    const char* f = reinterpret_cast<const char*>(is_.data());
+    for (size_t off = 0; off < is_.size() * sizeof(uint32_t); off += 64)
+      __builtin_prefetch(f + off);
+    if (changes_.capacity() != 0) __builtin_prefetch(changes_.data());
   }
 
   void FillStats(Stats* out) const {
@@ -249,6 +281,10 @@ class DenseCellCore {
   // Compact keeps this many free slots at least, so that a cell whose population wavers near a
   // multiple of kBlock does not move slots back and forth every query.
   static constexpr uint32_t kCompactSlack = 4;
+  // The largest matrix a cell may keep (DenseCellOptions::matrix_slots is clamped to it): its
+  // blocks bound the scan's per-query buffer of differing blocks, kept on the stack.
+  static constexpr uint32_t kMaxMatrixSlots = 1024;
+  static constexpr uint32_t kMaxMatrixBlocks = kMaxMatrixSlots / kBlock;
 
   struct Change {
     uint32_t a, b;
@@ -258,14 +294,18 @@ class DenseCellCore {
     Box<K, T> box;  // the box at the last query
     uint32_t live;  // live at the last query (0/1)
   };
+  // A block whose bits differ between a changed slot's pairs and its tests now (the matrix scan).
+  struct Hit {
+    uint32_t block, diff, now;
+  };
   // Per-thread scratch of one Apply: the rows as they were ("then"), which slots changed, and
   // per block the slots that did not change and are live (a block without any holds only pairs
-  // that its changed slots decide).
+  // that its changed slots decide); for the matrix scan, per block the changed slots done.
   // The changed slots' order and old states are per thread too (not per cell): the lists are
   // needed only inside Apply, and a per-cell list is one more line to miss per touched cell.
   struct Scratch {
     std::vector<T> then_rows;
-    std::vector<uint32_t> then_live, changed, steady;
+    std::vector<uint32_t> then_live, changed, steady, done;
     std::vector<uint32_t> order;  // the query's changed slots, in order
     std::vector<Before> before;   // their states at the last query
   };
@@ -304,14 +344,139 @@ class DenseCellCore {
   void Resize(size_t n) {
     rows_.resize(n * kRows);
     is_.resize(n, 0);
+    if (matrix_) {
+      // Rows and columns of the slots beyond a smaller n are all clear (those slots are dead).
+      const size_t from = size_ / kBlock, to = n / kBlock;
+      if (from != to) {
+        std::vector<uint16_t> pairs(n * to, 0);
+        for (size_t h = 0; h < std::min<size_t>(n, size_); ++h) {
+          std::copy_n(pairs_.begin() + static_cast<ptrdiff_t>(h * from), std::min(from, to),
+                      pairs.begin() + static_cast<ptrdiff_t>(h * to));
+        }
+        pairs_.swap(pairs);
+      }
+    }
     size_ = static_cast<uint32_t>(n);
-  }
-  void Reserve(uint32_t h) {
-    if (h >= size_) Resize((size_t{h} + kBlock) / kBlock * kBlock);
   }
   void Mark(Scratch& s, uint32_t h, bool live) {
     s.order.push_back(h);
-    s.before.push_back(Before{live ? BoxAt(h) : Box<K, T>{}, live ? 1u : 0u});
+    if (!matrix_) s.before.push_back(Before{live ? BoxAt(h) : Box<K, T>{}, live ? 1u : 0u});
+  }
+
+  // ---- the bit matrix: bit j % kBlock of pairs_[h * blocks + j / kBlock] is set iff slots h and
+  // j are a reported pair (both live, boxes overlapping, accepted by the filter) ----
+
+  uint16_t* PairRow(uint32_t h) { return pairs_.data() + size_t{h} * (size_ / kBlock); }
+  const uint16_t* PairRow(uint32_t h) const { return pairs_.data() + size_t{h} * (size_ / kBlock); }
+  void FlipPair(uint32_t a, uint32_t b) {
+    PairRow(a)[b / kBlock] ^= static_cast<uint16_t>(1u << (b % kBlock));
+    PairRow(b)[a / kBlock] ^= static_cast<uint16_t>(1u << (a % kBlock));
+  }
+
+  // At the start of a query that leaves the cell with `top` slots: drops the matrix of a cell
+  // growing beyond matrix_slots, or builds one, from the boxes as they are (the pairs last
+  // reported), for a cell that has at most half as many, or that is empty (nothing to build)
+  // and stays within the cap.
+  void ChooseMode(size_t top) {
+    const size_t cap = options_.matrix_slots;
+    if (matrix_ && top > cap) {
+      matrix_ = false;
+      pairs_ = {};
+    } else if (!matrix_ && cap != 0 && (top <= cap / 2 || (size_ == 0 && top <= cap))) {
+      matrix_ = true;
+      pairs_.assign(size_t{size_} * (size_ / kBlock), 0);
+      for (uint32_t a = 0; a < size_; ++a) {
+        if (is_[a] == 0) continue;
+        const Box<K, T> box = BoxAt(a);
+        for (uint32_t b = a + 1; b < size_; ++b) {
+          if (is_[b] != 0 && OverlapsFlat(box, BoxAt(b)) != 0 && Accepts(a, b)) FlipPair(a, b);
+        }
+      }
+    }
+  }
+
+  // Compact's move of live slot `from` to dead slot `to`: its row, and its bit in its partners'.
+  void MoveMatrixSlot(uint32_t from, uint32_t to) {
+    const uint32_t blocks = size_ / kBlock;
+    uint16_t* row = PairRow(from);
+    for (uint32_t b = 0; b < blocks; ++b) {
+      for (uint32_t bits = row[b]; bits != 0; bits &= bits - 1) {
+        const uint32_t k = b * kBlock + static_cast<uint32_t>(std::countr_zero(bits));
+        PairRow(k)[from / kBlock] ^= static_cast<uint16_t>(1u << (from % kBlock));
+        PairRow(k)[to / kBlock] ^= static_cast<uint16_t>(1u << (to % kBlock));
+      }
+    }
+    std::copy_n(row, blocks, PairRow(to));
+    std::fill_n(row, blocks, uint16_t{0});
+  }
+
+  // The matrix query: each changed slot c, in order, is tested now against the cell's live
+  // slots, and every bit where that differs from c's row is a changed pair, reported and
+  // flipped at once (in c's row and its partner's). A pair of two changed slots is thus
+  // reported by the first of them and agrees from the second's side; the AVX-512 scan skips a
+  // block whose live and paired slots are all changed slots already done (the portable one
+  // tests it: its bits then agree).
+  void FindChangesMatrix(Scratch& s) {
+    const uint32_t blocks = size_ / kBlock;
+    s.done.assign(blocks, 0);
+    Hit hits[kMaxMatrixBlocks];
+    for (const uint32_t c : s.order) {
+      uint32_t n;
+#ifdef BP_DENSE_WIDE
+      if constexpr (kHasWideRows<T>) {
+        n = wide_ ? ScanMatrixWide(c, s.done.data(), hits) : ScanMatrix(c, s.done.data(), hits);
+      } else {
+        n = ScanMatrix(c, s.done.data(), hits);
+      }
+#else
+      n = ScanMatrix(c, s.done.data(), hits);
+#endif
+      for (uint32_t k = 0; k < n; ++k) {
+        const Hit& hit = hits[k];
+        for (uint32_t diff = hit.diff; diff != 0; diff &= diff - 1) {
+          const auto i = static_cast<uint32_t>(std::countr_zero(diff));
+          const uint32_t j = hit.block * kBlock + i;
+          if (!Accepts(c, j)) continue;
+          changes_.push_back(Change{c, j, ((hit.now >> i) & 1u) != 0});
+          FlipPair(c, j);
+        }
+      }
+      s.done[c / kBlock] |= 1u << (c % kBlock);
+    }
+  }
+
+  // Writes to hits the blocks where changed slot c's tests now differ from its row of the matrix
+  // (slots done excluded); returns their number. The portable kernel.
+  uint32_t ScanMatrix(uint32_t c, const uint32_t* done, Hit* hits) {
+    T nlo[kAxes], nhi[kAxes];
+    for (size_t a = 0; a < kAxes; ++a) {
+      nlo[a] = rows_[At(c, 2 * a)];
+      nhi[a] = rows_[At(c, 2 * a + 1)];
+    }
+    const uint32_t blocks = size_ / kBlock, ic = is_[c];
+    const uint16_t* then = PairRow(c);
+    uint32_t n = 0;
+    for (uint32_t b = 0; b < blocks; ++b) {
+      const uint32_t* __restrict is = is_.data() + size_t{b} * kBlock;
+      const T* __restrict block = rows_.data() + size_t{b} * kBlockValues;
+      uint32_t mask[kBlock];
+      for (uint32_t i = 0; i < kBlock; ++i) mask[i] = ic & is[i];
+      for (size_t a = 0; a < kAxes; ++a) {
+        const T* __restrict lo = block + 2 * a * kBlock;
+        const T* __restrict hi = lo + kBlock;
+        for (uint32_t i = 0; i < kBlock; ++i) {
+          mask[i] &=
+              static_cast<uint32_t>(lo[i] <= nhi[a]) & static_cast<uint32_t>(nlo[a] <= hi[i]);
+        }
+      }
+      uint32_t now = 0;
+      for (uint32_t i = 0; i < kBlock; ++i) now |= mask[i] << i;
+      tests_ += kBlock;
+      uint32_t diff = (now ^ then[b]) & ~done[b];
+      if (b == c / kBlock) diff &= ~(1u << (c % kBlock));
+      if (diff != 0) hits[n++] = Hit{b, diff, now};
+    }
+    return n;
   }
 
   // The pairs whose status differs between the last query and now, each reported once. With
@@ -319,6 +484,10 @@ class DenseCellCore {
   // they are for every unchanged slot, and the pairs among the changed slots are decided one by
   // one; with more, the scratch holds the rows as they were and one pass settles every pair.
   void FindChanges(Scratch& s) {
+    if (matrix_) {
+      FindChangesMatrix(s);
+      return;
+    }
     const std::vector<uint32_t>& order = s.order;
     const std::vector<Before>& before = s.before;
     if (order.size() <= kFewChanges) {
@@ -465,15 +634,45 @@ class DenseCellCore {
       }
     }
   }
+
+  // ScanMatrix with AVX-512: a block whose live and paired slots are all done is skipped.
+  BP_WIDE_TARGET uint32_t ScanMatrixWide(uint32_t c, const uint32_t* done, Hit* hits) {
+    T nlo[kAxes], nhi[kAxes];
+    for (size_t a = 0; a < kAxes; ++a) {
+      nlo[a] = rows_[At(c, 2 * a)];
+      nhi[a] = rows_[At(c, 2 * a + 1)];
+    }
+    const uint32_t blocks = size_ / kBlock, c_block = c / kBlock;
+    const bool live = is_[c] != 0;
+    const uint16_t* then = PairRow(c);
+    uint32_t n = 0;
+    for (uint32_t b = 0; b < blocks; ++b) {
+      uint32_t now = live ? WideLive(is_.data() + size_t{b} * kBlock) : 0;
+      const uint32_t was = then[b];
+      if (((now | was) & ~done[b]) == 0) continue;
+      tests_ += kBlock;
+      const T* block = rows_.data() + size_t{b} * kBlockValues;
+      for (size_t a = 0; a < kAxes; ++a) {
+        const size_t lo = 2 * a * kBlock, hi = lo + kBlock;
+        now = WideRows<T>::Overlap(now, block + lo, block + hi, nlo[a], nhi[a]);
+      }
+      uint32_t diff = (now ^ was) & ~done[b];
+      if (b == c_block) diff &= ~(1u << (c % kBlock));
+      if (diff != 0) hits[n++] = Hit{b, diff, now};
+    }
+    return n;
+  }
 #endif
 
   Options options_;
   bool wide_;                 // ScanBlocks takes the AVX-512 kernel
+  bool matrix_ = false;       // the cell's pairs are kept in pairs_
   std::vector<T> rows_;       // per block: lo[0], hi[0], lo[1], ... (kBlock values each)
   std::vector<uint32_t> is_;  // live now (0 or 1)
   uint32_t size_ = 0;         // slots (the grid's local handles), a multiple of kBlock
   size_t live_ = 0;
-  OptionsTable options_of_;  // by slot
+  OptionsTable options_of_;      // by slot
+  std::vector<uint16_t> pairs_;  // with matrix_: size_ rows of size_ / kBlock words (see PairRow)
   std::vector<Change> changes_;
   size_t tests_ = 0;
 };
@@ -498,6 +697,19 @@ Status DenseCellCore<K, T>::Validate() const {
     }
   }
   if (live != live_) return fail("live count differs");
+  if (!matrix_) return pairs_.empty() ? Status::Ok() : fail("a matrix kept in the rows mode");
+  if (pairs_.size() != size_t{size_} * (size_ / kBlock)) return fail("matrix of the wrong size");
+  for (uint32_t a = 0; a < size_; ++a) {
+    for (uint32_t b = 0; b < size_; ++b) {
+      const bool bit = ((unsigned{PairRow(a)[b / kBlock]} >> (b % kBlock)) & 1u) != 0;
+      const bool pair = a != b && is_[a] != 0 && is_[b] != 0 && Accepts(a, b) &&
+                        OverlapsFlat(BoxAt(a), BoxAt(b)) != 0;
+      if (bit != pair) {
+        return fail("matrix bit of slots " + std::to_string(a) + " and " + std::to_string(b) +
+                    (bit ? " set for no pair" : " clear for a pair"));
+      }
+    }
+  }
   return Status::Ok();
 }
 

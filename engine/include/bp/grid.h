@@ -195,6 +195,8 @@ class GridCore {
   // Touched cells a pool thread claims at a time: long enough runs to prefetch the next cell
   // within, short enough to balance uneven cells.
   static constexpr size_t kCellRun = 32;
+  // How far ahead of the cell being applied its successors' records and arrays are prefetched.
+  static constexpr size_t kRecordAhead = 4, kArraysAhead = 2;
   using Space = CellSpace<kDim>;
   using CellCoord = typename Space::Coord;
   static constexpr int64_t kLimit = Space::kLimit;
@@ -857,7 +859,7 @@ class GridCore {
       for (auto& w : witnessed_) w.clear();
       pool_->ParallelFor(touched_.size(), kCellRun, [this](size_t begin, size_t end, unsigned t) {
         for (size_t i = begin; i < end; ++i) {
-          if (i + 1 < end) PrefetchCell(*cells_[touched_[i + 1]]);
+          PrefetchAhead(i, end);
           ApplyCell(i, t);
         }
       });
@@ -866,8 +868,7 @@ class GridCore {
       witnessed_.resize(1);
       witnessed_[0].clear();
       for (size_t i = 0; i < touched_.size(); ++i) {
-        if (i + 2 < touched_.size()) Prefetch(cells_[touched_[i + 2]].get());
-        if (i + 1 < touched_.size()) PrefetchCell(*cells_[touched_[i + 1]]);
+        PrefetchAhead(i, touched_.size());
         ApplyCell(i, 0);
       }
     }
@@ -877,10 +878,22 @@ class GridCore {
     touched_.clear();
   }
 
-  // Starts loading what applying the cell reads first: its buffered updates and, for a cell
-  // type that says where its hot arrays are, those.
-  void PrefetchCell(const GridCell& cell) {
-    if constexpr (requires { cell.core.Prefetch(); }) cell.core.Prefetch();
+  // Starts loading what applying touched_[k] reads, for the cells after touched_[i] (of a run
+  // ending at end), in two stages, as each stage reads what the one before loads: every line of
+  // the record of the cell 4 ahead, and the arrays of the cell 2 ahead (its local handles' table,
+  // its free list's end and, for a cell type that says where its hot arrays are, those). Without
+  // the stages, a cell's record and arrays were dependent misses, one after the other.
+  void PrefetchAhead(size_t i, size_t end) {
+    if (i + kRecordAhead < end) {
+      const char* p = reinterpret_cast<const char*>(cells_[touched_[i + kRecordAhead]].get());
+      for (size_t off = 0; off < sizeof(GridCell); off += 64) Prefetch(p + off);
+    }
+    if (i + kArraysAhead < end) {
+      const GridCell& cell = *cells_[touched_[i + kArraysAhead]];
+      if constexpr (requires { cell.core.Prefetch(); }) cell.core.Prefetch();
+      if (!cell.global.empty()) Prefetch(cell.global.data());
+      if (!cell.free_local.empty()) Prefetch(&cell.free_local.back());
+    }
   }
 
   // Applies touched_[i] on pool thread `thread`: runs the cell's core, appends its changes (as

@@ -8,9 +8,18 @@
 //
 // Thread safety: ParallelFor is called by one thread at a time (the engine's owner); the body
 // runs concurrently on distinct indices and must not throw.
+// A loop does not wait for a worker that has not joined it: the caller runs runs itself until
+// none is left, closes the loop, and waits only for the workers counted in it (a worker that
+// counted itself in just before the close leaves at once, having found no run). A worker woken late
+// (a virtual CPU's wake-up took 1-2 ms at times on this project's machine, and an S2a frame is
+// 0.02 ms) finds the loop closed and goes back to waiting.
 // Invariants:
-//  1. Outside ParallelFor every worker waits on wake_ and no body is referenced.
+//  1. Outside ParallelFor open_ is false, no worker runs a body and none is referenced (a late
+//     worker may still count itself in and out of active_, touching nothing else).
 //  2. ParallelFor returns only after every index in [0, n) has been run exactly once.
+//  3. A worker runs a loop's body only after counting itself in active_ and then seeing that
+//     loop open (open_ and its generation); the caller closes the loop before it waits for
+//     active_ to drop to zero, so no worker enters a closed loop or outlives the body.
 #pragma once
 
 #include <algorithm>
@@ -69,14 +78,16 @@ class WorkerPool {
       n_ = n;
       grain_ = std::max<size_t>(grain, 1);
       next_.store(0, std::memory_order_relaxed);
-      busy_.store(workers_.size(), std::memory_order_relaxed);
-      generation_.fetch_add(1, std::memory_order_release);
+      generation_.fetch_add(1, std::memory_order_seq_cst);
+      open_.store(true, std::memory_order_seq_cst);
     }
     wake_.notify_all();
     Run(body, n, 0);
-    SpinWhile([this] { return busy_.load(std::memory_order_acquire) != 0; });
+    // Every run is claimed: close the loop, then wait for the workers that joined it.
+    open_.store(false, std::memory_order_seq_cst);
+    SpinWhile([this] { return active_.load(std::memory_order_seq_cst) != 0; });
     std::unique_lock<std::mutex> lock(mutex_);
-    done_.wait(lock, [this] { return busy_.load(std::memory_order_relaxed) == 0; });
+    done_.wait(lock, [this] { return active_.load(std::memory_order_seq_cst) == 0; });
     body_ = nullptr;
   }
 
@@ -112,8 +123,6 @@ class WorkerPool {
   void Work(unsigned thread) {
     uint64_t seen = 0;
     for (;;) {
-      const Body* body;
-      size_t n;
       SpinWhile([&] {
         return generation_.load(std::memory_order_acquire) == seen &&
                !stop_.load(std::memory_order_relaxed);
@@ -126,13 +135,19 @@ class WorkerPool {
         });
         if (stop_.load(std::memory_order_relaxed)) return;
         seen = generation_.load(std::memory_order_relaxed);
-        body = body_;
-        n = n_;
       }
-      on_workers_.fetch_add(Run(*body, n, thread), std::memory_order_relaxed);
+      // Join the loop if it is still open (invariant 3): counted first, then checked, against
+      // the caller's close-then-wait, both sequentially consistent.
+      active_.fetch_add(1, std::memory_order_seq_cst);
+      if (open_.load(std::memory_order_seq_cst) &&
+          generation_.load(std::memory_order_seq_cst) == seen) {
+        on_workers_.fetch_add(
+            Run(*body_.load(std::memory_order_acquire), n_.load(std::memory_order_acquire), thread),
+            std::memory_order_relaxed);
+      }
       {
         std::lock_guard<std::mutex> lock(mutex_);
-        busy_.fetch_sub(1, std::memory_order_release);
+        active_.fetch_sub(1, std::memory_order_seq_cst);
       }
       done_.notify_one();
     }
@@ -142,14 +157,17 @@ class WorkerPool {
   std::mutex mutex_;
   std::condition_variable wake_;
   std::condition_variable done_;
-  const Body* body_ = nullptr;
-  size_t n_ = 0;
-  size_t grain_ = 1;
+  // The open loop's body and size, written by the caller before it opens the loop; read by a
+  // worker that joined it, without the mutex.
+  std::atomic<const Body*> body_{nullptr};
+  std::atomic<size_t> n_{0};
+  size_t grain_ = 1;  // read by Run after the same ordering as body_
   std::atomic<size_t> next_{0};
   std::atomic<size_t> on_workers_{0};
+  std::atomic<size_t> active_{0};  // workers inside the current loop (joined, not yet out)
+  std::atomic<bool> open_{false};  // the current loop takes workers
   // Written under mutex_ (so that a blocked waiter misses no change); atomic so that a spinning
   // thread may read them without it.
-  std::atomic<size_t> busy_{0};
   std::atomic<uint64_t> generation_{0};
   std::atomic<bool> stop_{false};
 };
