@@ -476,7 +476,7 @@ void Daemon::ProcessPayload(std::span<const uint8_t> payload, const dds_sample_i
   if (batch_.restate() && batch_.restate_run() != 0) ContinueRestate(producer);
   interval_updates_ += counts.inserts + counts.updates + counts.erases;
   frame_dirty_ = true;
-  frame_work_ += Clock::now() - start;
+  ingest_work_ += Clock::now() - start;
   if (config_.frames.boundary == FrameBoundary::kEndOfFrame && batch_.end_of_frame()) {
     RunFrame(producer, batch_.frame(), batch_.sent_time_ns());
   }
@@ -522,6 +522,7 @@ void Daemon::FlushRejections() {
 void Daemon::RunFrame(uint32_t source_producer, uint64_t source_frame, uint64_t source_sent_ns) {
   const auto start = Clock::now();
   host_->Query(&uncollide_, &collide_);
+  const auto queried = Clock::now();
   const uint64_t frame = frames_.load() + 1;
   // Pairs of the frame: uncollides then collides, split into parts of at most max pairs.
   const size_t pairs = (uncollide_.size() + collide_.size()) / 2;
@@ -562,12 +563,17 @@ void Daemon::RunFrame(uint32_t source_producer, uint64_t source_frame, uint64_t 
   frame_dirty_ = false;
   ++interval_frames_;
   interval_events_ += pairs;
-  frame_work_ += Clock::now() - start;
   // Kept for the summary's percentiles only, and cleared by it (no summary, no growth).
   if (summaries_) {
-    frame_ms_.push_back(std::chrono::duration<double, std::milli>(frame_work_).count());
+    using Ms = std::chrono::duration<double, std::milli>;
+    const double ingest = Ms(ingest_work_).count(), query = Ms(queried - start).count(),
+                 publish = Ms(Clock::now() - queried).count();
+    ingest_ms_.push_back(ingest);
+    query_ms_.push_back(query);
+    publish_ms_.push_back(publish);
+    frame_ms_.push_back(ingest + query + publish);
   }
-  frame_work_ = std::chrono::nanoseconds(0);
+  ingest_work_ = std::chrono::nanoseconds(0);
 }
 
 void Daemon::WriteEventPart() {
@@ -703,16 +709,23 @@ void Daemon::Summary() {
   st.set_frame_ms_p99(Percentile(frame_ms_, 0.99));
   st.set_frame_ms_max(frame_ms_.empty() ? 0.0
                                         : *std::max_element(frame_ms_.begin(), frame_ms_.end()));
+  st.set_ingest_ms_p50(Percentile(ingest_ms_, 0.50));
+  st.set_ingest_ms_p99(Percentile(ingest_ms_, 0.99));
+  st.set_query_ms_p50(Percentile(query_ms_, 0.50));
+  st.set_query_ms_p99(Percentile(query_ms_, 0.99));
+  st.set_publish_ms_p50(Percentile(publish_ms_, 0.50));
+  st.set_publish_ms_p99(Percentile(publish_ms_, 0.99));
   const double per_s = seconds > 0 ? 1.0 / seconds : 0.0;
   spdlog::info(
       "objects {} | {:.1f} frames/s | {:.0f} updates/s | {:.0f} events/s | frame p50 "
-      "{:.3f} ms p99 {:.3f} ms | rejected {}",
+      "{:.3f} ms p99 {:.3f} ms (p50 ingest {:.3f}, query {:.3f}, publish {:.3f} ms) | rejected {}",
       host_->Objects(), static_cast<double>(interval_frames_) * per_s,
       static_cast<double>(interval_updates_) * per_s, static_cast<double>(interval_events_) * per_s,
-      st.frame_ms_p50(), st.frame_ms_p99(), interval_rejected_);
+      st.frame_ms_p50(), st.frame_ms_p99(), st.ingest_ms_p50(), st.query_ms_p50(),
+      st.publish_ms_p50(), interval_rejected_);
   PublishStatus(wire::SERVING, true);
   interval_start_ = now;
-  frame_ms_.clear();
+  for (auto* v : {&frame_ms_, &ingest_ms_, &query_ms_, &publish_ms_}) v->clear();
   interval_frames_ = interval_batches_ = interval_updates_ = interval_events_ = interval_rejected_ =
       0;
 }

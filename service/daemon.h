@@ -132,7 +132,7 @@ class Daemon {
   // Frame state.
   bool frame_dirty_ = false;  // a batch was applied since the last frame
   bool summaries_ = false;    // periodic summaries are on (frame times are kept for them)
-  std::chrono::nanoseconds frame_work_{0};
+  std::chrono::nanoseconds ingest_work_{0};  // the open frame's batches: decode, validate, apply
   uint64_t event_seq_ = 0;
   uint64_t status_seq_ = 0;
   uint64_t event_write_failures_ = 0;
@@ -185,7 +185,10 @@ class Daemon {
 
   // Interval statistics.
   std::chrono::steady_clock::time_point interval_start_;
-  std::vector<double> frame_ms_;
+  // Per frame of the interval, in ms: the whole daemon work, and its stages (ingest: the
+  // frame's batches decoded, validated and applied; query: the engine's query; publish: the
+  // event parts encoded and written).
+  std::vector<double> frame_ms_, ingest_ms_, query_ms_, publish_ms_;
   uint64_t interval_frames_ = 0;
   uint64_t interval_batches_ = 0;
   uint64_t interval_updates_ = 0;

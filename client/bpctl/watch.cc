@@ -253,6 +253,11 @@ int ShowStatus(const Common& common, const StatusOptions& options) {
             static_cast<double>(i.updates()) / i.seconds(),
             static_cast<double>(i.events()) / i.seconds(), i.frame_ms_p50(), i.frame_ms_p99(),
             i.frame_ms_max());
+        std::printf(
+            "  frame stages p50/p99: ingest %.3f/%.3f ms, query %.3f/%.3f ms, publish %.3f/%.3f "
+            "ms\n",
+            i.ingest_ms_p50(), i.ingest_ms_p99(), i.query_ms_p50(), i.query_ms_p99(),
+            i.publish_ms_p50(), i.publish_ms_p99());
       }
       for (const auto& j : r.rejections()) {
         std::printf("  rejected (producer %u, frame %llu): %s\n", j.producer(),

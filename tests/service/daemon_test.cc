@@ -8,6 +8,7 @@
 #include <limits>
 #include <mutex>
 #include <set>
+#include <tuple>
 
 #include "service_test_support.h"
 
@@ -484,7 +485,22 @@ TEST(Daemon, SummariesAndStopAreServedUnderSustainedLoad) {
   while (periodic < 3 && std::chrono::steady_clock::now() < until && run.load()) {
     std::vector<wire::DaemonStatus> reports;
     BP_ASSERT_OK(client.status->subscriber().Poll(100ms, &reports));
-    for (auto& r : reports) periodic += r.has_interval() && r.interval().frames() > 0;
+    for (auto& r : reports) {
+      if (!r.has_interval() || r.interval().frames() == 0) continue;
+      ++periodic;
+      // Every frame decodes 1000 updates, queries 1000 boxes and publishes a part, so each
+      // stage takes time; no stage of a frame exceeds the frame's work.
+      const wire::IntervalStats& i = r.interval();
+      for (auto [p50, p99, what] :
+           {std::tuple{i.ingest_ms_p50(), i.ingest_ms_p99(), "ingest"},
+            std::tuple{i.query_ms_p50(), i.query_ms_p99(), "query"},
+            std::tuple{i.publish_ms_p50(), i.publish_ms_p99(), "publish"}}) {
+        EXPECT_GT(p50, 0.0) << what;
+        EXPECT_LE(p50, p99) << what;
+        EXPECT_LE(p99, i.frame_ms_max()) << what;
+      }
+      EXPECT_LE(i.frame_ms_p50(), i.frame_ms_p99());
+    }
   }
   EXPECT_GE(periodic, 3u) << "no periodic status while the producer floods";
   const bool flooding = run.load();
