@@ -57,7 +57,11 @@ uint64_t Lines(std::vector<uint32_t>& table, uint64_t count, uint64_t seed, bool
   };
   uint64_t s = 0;
   for (uint64_t i = 0; i < count; ++i) {
-    __builtin_prefetch(&table[line(i + 16)], write ? 1 : 0);
+    if (write) {
+      __builtin_prefetch(&table[line(i + 16)], 1);  // the argument must be a constant
+    } else {
+      __builtin_prefetch(&table[line(i + 16)], 0);
+    }
     uint32_t* p = &table[line(i)];
     s += p[0] + p[15];
     if (write) p[1] += 1;
