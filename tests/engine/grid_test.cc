@@ -25,10 +25,6 @@ namespace detail {
 
 struct GridTestPeer {
   template <class Core>
-  static size_t ObjectBytes() {
-    return sizeof(typename Core::Object);
-  }
-  template <class Core>
   static void DropLargeListEntry(Core& core) {
     for (auto& cell : core.cells_) {
       if (cell->in_use && !cell->large.empty()) {
@@ -368,55 +364,6 @@ std::vector<std::pair<uint64_t, uint64_t>> SceneEvents(unsigned threads, uint32_
     EXPECT_EQ(pool_routed, 0u);
   }
   return out;
-}
-
-// An object in one cell keeps its reference in its own record (one line for 3-D float), the
-// others in the shared pool: objects moving between one cell and several, growing, shrinking and
-// churned, with 1 and 2 threads (deferred local handles, dense cells compacting), against brute
-// force; the validator checks every reference after every query.
-TEST(Grid, ReferencesMoveBetweenTheRecordAndThePool) {
-  using DenseGridCore = detail::GridCore<detail::DenseCellCore<3, float>>;
-  EXPECT_EQ(detail::GridTestPeer::ObjectBytes<DenseGridCore>(), 64u);
-  EXPECT_EQ(detail::GridTestPeer::ObjectBytes<SegmentedGridCore>(), 64u);
-  for (unsigned threads : {1u, 2u}) {
-    SCOPED_TRACE("threads " + std::to_string(threads));
-    GridDenseOptions options;
-    options.cell_size = 4;
-    options.max_cells_per_object = 100000;  // clamped: an object's cell count fits 16 bits
-    options.threads = threads;
-    options.parallel_routing_from = 16;
-    GridDense<3, float> engine(options);
-    EXPECT_EQ(engine.core().options().max_cells_per_object, 65535u);
-    Twin<3, float, GridDense<3, float>> twin(&engine);
-    std::mt19937_64 rng(11);
-    std::uniform_real_distribution<float> pos(0, 40), step(-0.6f, 0.6f);
-    constexpr uint64_t kObjects = 300;
-    std::vector<float> at(kObjects), size(kObjects, 0.5f);
-    for (uint64_t i = 0; i < kObjects; ++i) {
-      at[i] = pos(rng);
-      twin.Insert(i, Cube<3, float>(at[i], size[i]));
-    }
-    twin.Query();
-    uint64_t next = kObjects;
-    std::vector<uint64_t> keys(kObjects);
-    for (uint64_t i = 0; i < kObjects; ++i) keys[i] = i;
-    for (int f = 0; f < 40 && !HasFailure(); ++f) {
-      for (uint64_t i = static_cast<uint64_t>(f % 2); i < kObjects; i += 2) {
-        if (i % 7 == 0) size[i] = size[i] < 1 ? 5.0f : 0.5f;  // one cell <-> up to 8
-        at[i] = i % 5 == 0 ? pos(rng) : std::clamp(at[i] + step(rng), 0.0f, 40.0f);
-        twin.Update(keys[i], Cube<3, float>(at[i], size[i]));
-      }
-      for (int c = 0; c < 3; ++c) {
-        const auto i = static_cast<size_t>(rng() % kObjects);
-        twin.Erase(keys[i]);
-        keys[i] = next++;
-        at[i] = pos(rng);
-        twin.Insert(keys[i], Cube<3, float>(at[i], size[i]));
-      }
-      twin.Query();
-    }
-    EXPECT_GT(twin.events(), 1000u);
-  }
 }
 
 TEST(Grid, ThreadCountDoesNotChangeEvents) {

@@ -90,8 +90,7 @@ struct GridOptions {
   double cell_size = 0;
   /// The automatic cell size aims at this many objects per cell (kDefaultObjectsPerCell).
   double objects_per_cell = kDefaultObjectsPerCell<CellOptions>;
-  /// An object whose box would cover more cells than this is kept in the large set instead
-  /// (at most 65535).
+  /// An object whose box would cover more cells than this is kept in the large set instead.
   uint32_t max_cells_per_object = 16;
   /// Threads that apply the touched cells of a query (the caller's included). Events do not
   /// depend on it: cells are independent, and their changes are folded in one fixed order.
@@ -114,12 +113,10 @@ class GridCore {
   using BoxType = Box<kDim, Coord>;
   static constexpr const char* kName = Cell::kGridName;
   static constexpr size_t kMaxHandles = size_t{1} << 28;
-  static constexpr uint32_t kMaxCellsPerObject = 65535;  // an object's cell count fits 16 bits
   using Options = GridOptions<typename Cell::Options>;
 
   explicit GridCore(const Options& options = Options()) : options_(options) {
-    options_.max_cells_per_object =
-        std::clamp<uint32_t>(options_.max_cells_per_object, 1, kMaxCellsPerObject);
+    options_.max_cells_per_object = std::max<uint32_t>(options_.max_cells_per_object, 1);
     if (!(options_.objects_per_cell >= 1)) options_.objects_per_cell = 1;
     if (options_.cell_size > 0 && std::isfinite(options_.cell_size))
       SetCellSize(options_.cell_size);
@@ -222,18 +219,13 @@ class GridCore {
   };
   enum class State : uint8_t { kDead, kLive };
   // One record per global handle, box included; line-aligned when it fits a line (3-D float:
-  // 63 bytes), so routing an update reads one line. An object in one cell (most of them, with
-  // cells several times an object's size) keeps its reference to it here, not in refs_: routing
-  // it reads no other line.
+  // 61 bytes), so routing an update reads one line.
   struct ObjectFields {
     BoxType box;
-    CellCoord lo{}, hi{};  // cell range
-    union {
-      uint32_t refs = 0;  // nrefs > 1: the first of its references in refs_
-      CellRef one;        // nrefs == 1: its reference
-    };
+    CellCoord lo{}, hi{};    // cell range
+    uint32_t refs = 0;       // first CellRef in refs_ (small objects)
+    uint32_t nrefs = 0;      // cells covered (0 for large objects)
     uint32_t large = kNone;  // index in large_ (large objects)
-    uint16_t nrefs = 0;      // cells covered (0 for large objects; max_cells_per_object bounds it)
     State state = State::kDead;
   };
   struct alignas(sizeof(ObjectFields) <= 64 ? 64 : alignof(ObjectFields)) Object : ObjectFields {};
@@ -464,7 +456,7 @@ class GridCore {
       if (i + 16 < n) Prefetch(&objects_[erases[i + 16]]);
       if (i + 8 < n) {
         const Object& ahead = objects_[erases[i + 8]];
-        if (ahead.nrefs > 1) Prefetch(&refs_[ahead.refs]);
+        if (ahead.nrefs != 0) Prefetch(&refs_[ahead.refs]);
       }
       EraseObject(erases[i]);
     }
@@ -533,8 +525,7 @@ class GridCore {
       AddLargeCandidates(h);
     }
     if (same_range) {
-      const CellRef* refs = RefsOf(o);
-      for (uint32_t i = 0; i < o.nrefs; ++i) RouteUpdate(refs[i], box);
+      for (uint32_t i = 0; i < o.nrefs; ++i) RouteUpdate(refs_[o.refs + i], box);
     } else {
       Migrate(h, lo, hi);
       if (with_large) AddLargeCandidates(h);
@@ -549,32 +540,28 @@ class GridCore {
     const uint32_t n = static_cast<uint32_t>(CellCount(lo, hi));
     const uint32_t refs = AllocRefs(n);
     Object& o = objects_[h];
-    // The old references, read from a copy when they sit in the record (the new ones may go
-    // there too). refs_ does not grow below: the pointer stays valid.
-    const CellRef saved = o.nrefs == 1 ? o.one : CellRef{};
-    const CellRef* old = o.nrefs == 1 ? &saved : refs_.data() + o.refs;
-    const uint32_t old_refs = o.nrefs > 1 ? o.refs : kInline, old_n = o.nrefs;
     uint32_t i = 0;
     Space::ForEachCoord(lo, hi, [&](const CellCoord& c) {
       CellRef ref;
       if (Space::Contains(o.lo, o.hi, c)) {
-        ref = old[Space::RowMajor(o.lo, o.hi, c)];
+        ref = refs_[o.refs + Space::RowMajor(o.lo, o.hi, c)];
         RouteUpdate(ref, box);
       } else {
-        ref = EnterCell(CellAt(c), h, RefPlace(refs, i), box);
+        ref = EnterCell(CellAt(c), h, refs + i, box);
       }
-      RefAt(h, RefPlace(refs, i++)) = ref;
+      refs_[refs + i++] = ref;
     });
     uint32_t j = 0;
     Space::ForEachCoord(o.lo, o.hi, [&](const CellCoord& c) {
-      CellRef ref = old[j++];
+      CellRef ref = refs_[o.refs + j++];
       if (Space::Contains(lo, hi, c)) return;
       RouteErase(ref);
     });
-    FreeRefs(old_refs, old_n);
+    FreeRefs(o.refs, o.nrefs);
     o.lo = lo;
     o.hi = hi;
-    SetRefs(o, refs, n);
+    o.refs = refs;
+    o.nrefs = n;
   }
 
   void EnterCells(uint32_t h, const CellCoord& lo, const CellCoord& hi) {
@@ -582,17 +569,18 @@ class GridCore {
     const uint32_t refs = AllocRefs(n);
     uint32_t i = 0;
     Space::ForEachCoord(lo, hi, [&](const CellCoord& c) {
-      const CellRef ref = EnterCell(CellAt(c), h, RefPlace(refs, i), objects_[h].box);
-      RefAt(h, RefPlace(refs, i++)) = ref;
+      const CellRef ref = EnterCell(CellAt(c), h, refs + i, objects_[h].box);
+      refs_[refs + i++] = ref;
     });
     Object& o = objects_[h];
     o.lo = lo;
     o.hi = hi;
-    SetRefs(o, refs, n);
+    o.refs = refs;
+    o.nrefs = n;
     o.large = kNone;
   }
 
-  // Routes h's insert into cell idx, whose reference will sit at ref_at (RefAt); returns that
+  // Routes h's insert into cell idx, whose reference will sit at refs_[ref_at]; returns that
   // reference. With defer_locals_ the cell's local handle is left for ApplyCell to allocate
   // (the reference's local is kNone until then): the cell's record and tables are not touched
   // here, on the serial path, but when the cell is applied (on its pool thread), where they are
@@ -621,18 +609,17 @@ class GridCore {
   }
 
   // Allocates global handle h's local handle in cell, for an insert whose local was deferred,
-  // and writes it into the object's reference to the cell (RefAt(h, ref_at)); returns it.
+  // and writes it into the object's reference to the cell (refs_[ref_at]); returns it.
   uint32_t ClaimLocal(GridCell& cell, uint32_t h, uint32_t ref_at) {
     const uint32_t local = AllocLocal(cell, h);
-    RefAt(h, ref_at).local = local;
+    refs_[ref_at].local = local;
     return local;
   }
 
   void LeaveCells(uint32_t h) {
     Object& o = objects_[h];
-    const CellRef* refs = RefsOf(o);
-    for (uint32_t i = 0; i < o.nrefs; ++i) RouteErase(refs[i]);
-    FreeRefs(o);
+    for (uint32_t i = 0; i < o.nrefs; ++i) RouteErase(refs_[o.refs + i]);
+    FreeRefs(o.refs, o.nrefs);
     o.nrefs = 0;
   }
 
@@ -646,7 +633,7 @@ class GridCore {
     if ((i) + 16 < (end)) Prefetch(&objects_[(updates)[(i) + 16].handle]); \
     if ((i) + 8 < (end)) {                                                 \
       const Object& ahead = objects_[(updates)[(i) + 8].handle];           \
-      if (ahead.nrefs > 1) Prefetch(&refs_[ahead.refs]);                   \
+      if (ahead.nrefs != 0) Prefetch(&refs_[ahead.refs]);                  \
     }                                                                      \
   } while (false)
 
@@ -709,9 +696,8 @@ class GridCore {
         continue;
       }
       o.box = box;
-      const CellRef* refs = RefsOf(o);
       for (uint32_t k = 0; k < o.nrefs; ++k) {
-        const CellRef ref = refs[k];
+        const CellRef ref = refs_[o.refs + k];
         PushRouted(sh.routed, ref, box);
         if (sh.counts[ref.cell]++ == 0) sh.touched.push_back(ref.cell);
       }
@@ -967,8 +953,8 @@ class GridCore {
         const uint32_t h = cell.global[from];
         cell.global[to] = h;
         cell.global[from] = kNone;
-        Object& o = objects_[h];
-        CellRef* ref = RefsOf(o);
+        const Object& o = objects_[h];
+        CellRef* ref = &refs_[o.refs];
         while (ref->cell != idx) ++ref;
         BP_ASSERT(ref->local == from);
         ref->local = to;
@@ -1140,9 +1126,8 @@ class GridCore {
   // The large objects listed in h's current cells, each once.
   void AddLargeCandidates(uint32_t h) {
     const Object& o = objects_[h];
-    const CellRef* refs = RefsOf(o);
     for (uint32_t i = 0; i < o.nrefs; ++i) {
-      for (uint32_t l : cells_[refs[i].cell]->large) {
+      for (uint32_t l : cells_[refs_[o.refs + i].cell]->large) {
         if (large_stamp_[l] != large_epoch_) {
           large_stamp_[l] = large_epoch_;
           candidates_.push_back(l);
@@ -1266,31 +1251,8 @@ class GridCore {
   }
 
   // --- cell reference pool: blocks of 2^k refs, free lists by k ------------------------------
-  // An object's references: in its record when it has one (Object::one; AllocRefs(1) then
-  // returns kInline), else a block of refs_. A reference's place is named by an index into
-  // refs_, or by kInline for the record of the object it belongs to.
-
-  static constexpr uint32_t kInline = kNone - 1;  // kNone: no place (see RouteInsert)
-
-  CellRef* RefsOf(Object& o) { return o.nrefs == 1 ? &o.one : refs_.data() + o.refs; }
-  const CellRef* RefsOf(const Object& o) const {
-    return o.nrefs == 1 ? &o.one : refs_.data() + o.refs;
-  }
-  // Where reference i of a block allocated by AllocRefs sits, and that place for object h.
-  static uint32_t RefPlace(uint32_t refs, uint32_t i) {
-    return refs == kInline ? kInline : refs + i;
-  }
-  CellRef& RefAt(uint32_t h, uint32_t place) {
-    return place == kInline ? objects_[h].one : refs_[place];
-  }
-  // Records in o the references allocated at refs (n of them).
-  static void SetRefs(Object& o, uint32_t refs, uint32_t n) {
-    if (n != 1) o.refs = refs;
-    o.nrefs = static_cast<uint16_t>(n);
-  }
 
   uint32_t AllocRefs(uint32_t n) {
-    if (n == 1) return kInline;
     size_t k = static_cast<size_t>(std::bit_width(n - 1));
     if (k >= free_refs_.size()) free_refs_.resize(k + 1);
     if (!free_refs_[k].empty()) {
@@ -1302,13 +1264,9 @@ class GridCore {
     refs_.resize(refs_.size() + (size_t{1} << k));
     return at;
   }
-  // Gives back the references allocated at `at` (n of them; nothing when they are inline).
   void FreeRefs(uint32_t at, uint32_t n) {
-    if (n <= 1) return;
+    if (n == 0) return;
     free_refs_[static_cast<size_t>(std::bit_width(n - 1))].push_back(at);
-  }
-  void FreeRefs(const Object& o) {
-    if (o.nrefs > 1) FreeRefs(o.refs, o.nrefs);
   }
 
   Options options_;

@@ -41,10 +41,8 @@ Status GridCore<Cell>::Validate() const {
     if (o.nrefs != CellCount(lo, hi)) return fail("object " + std::to_string(h) + ": ref count");
     uint32_t i = 0;
     bool ok = true;
-    const CellRef* refs = RefsOf(o);
-    if (o.nrefs > 1 && size_t{o.refs} + o.nrefs > refs_.size()) return fail("refs out of range");
     Space::ForEachCoord(lo, hi, [&](const CellCoord& c) {
-      CellRef ref = refs[i++];
+      CellRef ref = refs_[o.refs + i++];
       ok = ok && ref.cell < cells_.size() && cells_[ref.cell]->in_use &&
            cells_[ref.cell]->coord == c && ref.local < cells_[ref.cell]->global.size() &&
            cells_[ref.cell]->global[ref.local] == h;
