@@ -11,6 +11,7 @@
 #include <memory>
 #include <string>
 #include <system_error>
+#include <thread>
 #include <utility>
 
 #include "yaml_reader.h"
@@ -83,7 +84,11 @@ void ReadEngine(YamlReader& r, const Field& section, EngineConfig* e) {
         if (r.ReadNumber(v, positive, &size, "'auto'")) e->cell_size = size;
       }
     } else if (name == "threads") {
-      r.ReadInt(v, 1, kMaxThreads, &e->threads);
+      if (v.node.IsScalar() && v.node.Scalar() == "auto") {
+        e->threads = 0;
+      } else {
+        r.ReadInt(v, 1, kMaxThreads, &e->threads, "'auto'");
+      }
     } else if (name == "margin") {
       r.ReadNumber(v, NumberRange{.min = 0}, &e->margin);
     }
@@ -295,6 +300,12 @@ std::string YamlString(std::string_view text) {
 
 }  // namespace
 
+int EngineThreads(const EngineConfig& engine) {
+  if (engine.threads > 0) return engine.threads;
+  const unsigned hardware = std::thread::hardware_concurrency();
+  return static_cast<int>(std::clamp(hardware, 1u, static_cast<unsigned>(kMaxThreads)));
+}
+
 std::string_view CoordinateTypeName(CoordinateType type) {
   auto index = static_cast<size_t>(type);
   return index < kCoordinateNames.size() ? kCoordinateNames[index] : "unknown";
@@ -391,7 +402,7 @@ std::string ConfigToYaml(const Config& c) {
   line(k1, "dimension", std::to_string(c.engine.dimension));
   line(k1, "coordinate", CoordinateTypeName(c.engine.coordinate));
   line(k1, "cell_size", c.engine.cell_size ? FormatNumber(*c.engine.cell_size) : "auto");
-  line(k1, "threads", std::to_string(c.engine.threads));
+  line(k1, "threads", c.engine.threads == 0 ? "auto" : std::to_string(c.engine.threads));
   line(k1, "margin", FormatNumber(c.engine.margin));
   y += "dds:\n";
   line(k1, "domain", std::to_string(c.dds.domain));

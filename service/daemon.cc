@@ -98,10 +98,11 @@ void Daemon::RequestStop() {
 
 Status Daemon::Run() {
   spdlog::info(
-      "broadphased {}: engine {} ({}-D, {}), DDS domain {} partition '{}', topics {} / {} / {} / "
-      "{}, frames on {}, producer lease {} s, epoch {:016x}",
+      "broadphased {}: engine {} ({}-D, {}, {} thread{}), DDS domain {} partition '{}', topics {} "
+      "/ {} / {} / {}, frames on {}, producer lease {} s, epoch {:016x}",
       daemon_name_, host_->Name(), host_->Dimension(),
-      CoordinateTypeName(config_.engine.coordinate), config_.dds.domain, config_.dds.partition,
+      CoordinateTypeName(config_.engine.coordinate), EngineThreads(config_.engine),
+      EngineThreads(config_.engine) == 1 ? "" : "s", config_.dds.domain, config_.dds.partition,
       config_.dds.topics.updates, config_.dds.topics.events, config_.dds.topics.status,
       config_.dds.topics.requests, FrameBoundaryName(config_.frames.boundary),
       config_.producers.lease_s, epoch_);

@@ -347,17 +347,17 @@ Status Make(const EngineConfig& config, uint64_t max_objects, std::unique_ptr<En
   } else if (config.algorithm == "grid_segmented_sap") {
     GridSegmentedSapOptions options;
     options.cell_size = config.cell_size.value_or(0.0);
-    options.threads = static_cast<unsigned>(config.threads);
+    options.threads = static_cast<unsigned>(EngineThreads(config));
     engine = std::make_unique<GridSegmentedSap<K, T, uint64_t>>(options, margin);
   } else if (config.algorithm == "grid_batch_sap") {
     GridBatchSapOptions options;
     options.cell_size = config.cell_size.value_or(0.0);
-    options.threads = static_cast<unsigned>(config.threads);
+    options.threads = static_cast<unsigned>(EngineThreads(config));
     engine = std::make_unique<GridBatchSap<K, T, uint64_t>>(options, margin);
   } else if (config.algorithm == "grid_dense") {
     GridDenseOptions options;
     options.cell_size = config.cell_size.value_or(0.0);
-    options.threads = static_cast<unsigned>(config.threads);
+    options.threads = static_cast<unsigned>(EngineThreads(config));
     engine = std::make_unique<GridDense<K, T, uint64_t>>(options, margin);
   } else if (config.algorithm == "dynamic_octree") {
     engine = std::make_unique<DynamicOctree<K, T, uint64_t>>(DynamicOctreeOptions(), margin);

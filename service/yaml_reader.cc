@@ -247,8 +247,10 @@ std::optional<std::string> YamlReader::NumericScalar(const Field& field,
 }
 
 bool YamlReader::ParseInteger(const Field& field, std::string_view range_text, bool* negative,
-                              uint64_t* magnitude) {
-  std::optional<std::string> text = NumericScalar(field, "an integer");
+                              uint64_t* magnitude, std::string_view alternatives) {
+  std::string expected = "an integer";
+  if (!alternatives.empty()) expected += " or " + std::string(alternatives);
+  std::optional<std::string> text = NumericScalar(field, expected);
   if (!text) return false;
   std::string_view digits = *text;
   *negative = false;
@@ -259,7 +261,7 @@ bool YamlReader::ParseInteger(const Field& field, std::string_view range_text, b
   size_t n = 0;
   while (n < digits.size() && IsDigit(digits[n])) ++n;
   if (n == 0 || n != digits.size()) {
-    std::string reason = "expected an integer, got " + Quote(*text);
+    std::string reason = "expected " + expected + ", got " + Quote(*text);
     double as_double = 0;
     auto as_number = std::from_chars(digits.data(), digits.data() + digits.size(), as_double);
     if (as_number.ec == std::errc() && as_number.ptr == digits.data() + digits.size()) {
@@ -278,11 +280,12 @@ bool YamlReader::ParseInteger(const Field& field, std::string_view range_text, b
   return true;
 }
 
-bool YamlReader::ReadInt64(const Field& field, int64_t min, int64_t max, int64_t* out) {
+bool YamlReader::ReadInt64(const Field& field, int64_t min, int64_t max, int64_t* out,
+                           std::string_view alternatives) {
   bool negative = false;
   uint64_t magnitude = 0;
   std::string range_text = RangeText(min, max);
-  if (!ParseInteger(field, range_text, &negative, &magnitude)) return false;
+  if (!ParseInteger(field, range_text, &negative, &magnitude, alternatives)) return false;
   constexpr uint64_t kMaxPositive = static_cast<uint64_t>(std::numeric_limits<int64_t>::max());
   int64_t value = 0;
   if (!negative && magnitude <= kMaxPositive) {
@@ -303,11 +306,12 @@ bool YamlReader::ReadInt64(const Field& field, int64_t min, int64_t max, int64_t
   return true;
 }
 
-bool YamlReader::ReadUint64(const Field& field, uint64_t min, uint64_t max, uint64_t* out) {
+bool YamlReader::ReadUint64(const Field& field, uint64_t min, uint64_t max, uint64_t* out,
+                            std::string_view alternatives) {
   bool negative = false;
   uint64_t magnitude = 0;
   std::string range_text = RangeText(min, max);
-  if (!ParseInteger(field, range_text, &negative, &magnitude)) return false;
+  if (!ParseInteger(field, range_text, &negative, &magnitude, alternatives)) return false;
   if ((negative && magnitude != 0) || magnitude < min || magnitude > max) {
     Error(field, range_text + ", got " + field.node.Scalar());
     return false;

@@ -63,19 +63,22 @@ class YamlReader {
   /// Any scalar (plain or quoted) as text.
   bool ReadString(const Field& field, std::string* out);
   /// A plain decimal integer in [min, max] (no quotes, fraction, exponent or unit suffix).
-  bool ReadInt64(const Field& field, int64_t min, int64_t max, int64_t* out);
+  /// `alternatives` (e.g. "'auto'") is named in the message when the value is not an integer.
+  bool ReadInt64(const Field& field, int64_t min, int64_t max, int64_t* out,
+                 std::string_view alternatives = {});
   /// A plain decimal integer in [min, max], unsigned.
-  bool ReadUint64(const Field& field, uint64_t min, uint64_t max, uint64_t* out);
+  bool ReadUint64(const Field& field, uint64_t min, uint64_t max, uint64_t* out,
+                  std::string_view alternatives = {});
   /// ReadInt64 for a narrower integer type T (min and max must fit in T).
   template <class T>
-  bool ReadInt(const Field& field, T min, T max, T* out) {
+  bool ReadInt(const Field& field, T min, T max, T* out, std::string_view alternatives = {}) {
     if constexpr (std::is_unsigned_v<T>) {
       uint64_t v = 0;
-      if (!ReadUint64(field, min, max, &v)) return false;
+      if (!ReadUint64(field, min, max, &v, alternatives)) return false;
       *out = static_cast<T>(v);
     } else {
       int64_t v = 0;
-      if (!ReadInt64(field, min, max, &v)) return false;
+      if (!ReadInt64(field, min, max, &v, alternatives)) return false;
       *out = static_cast<T>(v);
     }
     return true;
@@ -125,7 +128,7 @@ class YamlReader {
   std::optional<std::string> NumericScalar(const Field& field, std::string_view expected);
   // Splits an integer scalar into sign and magnitude; records an error when it is not one.
   bool ParseInteger(const Field& field, std::string_view range_text, bool* negative,
-                    uint64_t* magnitude);
+                    uint64_t* magnitude, std::string_view alternatives);
 
   std::string source_;
   std::vector<Entry> errors_;

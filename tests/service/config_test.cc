@@ -4,6 +4,7 @@
 // BP_SOURCE_DIR (the repository root) is defined on the compile line.
 #include "config.h"
 
+#include <algorithm>
 #include <cstdint>
 #include <filesystem>
 #include <fstream>
@@ -13,6 +14,7 @@
 #include <sstream>
 #include <string>
 #include <string_view>
+#include <thread>
 #include <vector>
 
 #include <gtest/gtest.h>
@@ -107,7 +109,9 @@ TEST(ConfigDefaults, MatchTheDocumentedValues) {
   EXPECT_EQ(c.engine.dimension, 3);
   EXPECT_EQ(c.engine.coordinate, CoordinateType::kFloat);
   EXPECT_FALSE(c.engine.cell_size.has_value());
-  EXPECT_EQ(c.engine.threads, 1);
+  EXPECT_EQ(c.engine.threads, 0);  // auto
+  EXPECT_GE(EngineThreads(c.engine), 1);
+  EXPECT_LE(EngineThreads(c.engine), 256);
   EXPECT_EQ(c.engine.margin, 0.0);
   EXPECT_EQ(c.dds.domain, 0u);
   EXPECT_EQ(c.dds.cyclone_config, "cyclonedds-loopback.xml");
@@ -221,7 +225,7 @@ const RuleCase kRuleCases[] = {
      "producers), "
      "got a sequence"},
     {"SequenceForInteger", "engine:\n  threads: [1]\n",
-     "cfg.yaml:2:12: engine.threads: expected an integer, got a sequence"},
+     "cfg.yaml:2:12: engine.threads: expected an integer or 'auto', got a sequence"},
     {"MappingForString", "engine:\n  algorithm: {a: 1}\n",
      "cfg.yaml:2:14: engine.algorithm: expected a string, got a mapping"},
     {"MappingForTopics", "dds:\n  topics: [bp_a]\n",
@@ -231,20 +235,20 @@ const RuleCase kRuleCases[] = {
      "cfg.yaml:2:3: dds.partition: expected a string, got no value (write \"\" for an empty "
      "string)"},
     {"EmptyInteger", "engine:\n  threads:\n",
-     "cfg.yaml:2:3: engine.threads: expected an integer, got no value"},
+     "cfg.yaml:2:3: engine.threads: expected an integer or 'auto', got no value"},
     {"EmptyNumber", "frames:\n  tick_ms: ~\n",
      "cfg.yaml:2:3: frames.tick_ms: expected a number, got no value"},
     // Numbers: syntax.
     {"NonNumericInteger", "engine:\n  threads: four\n",
-     "cfg.yaml:2:12: engine.threads: expected an integer, got 'four'"},
+     "cfg.yaml:2:12: engine.threads: expected an integer or 'auto', got 'four'"},
     {"TrailingGarbage", "engine:\n  threads: 3x\n",
-     "cfg.yaml:2:12: engine.threads: expected an integer, got '3x'"},
+     "cfg.yaml:2:12: engine.threads: expected an integer or 'auto', got '3x'"},
     {"FractionForInteger", "engine:\n  dimension: 2.0\n",
      "cfg.yaml:2:14: engine.dimension: expected an integer, got '2.0' (must be a whole number)"},
     {"ExponentForInteger", "dds:\n  update_queue: 1e3\n",
      "cfg.yaml:2:17: dds.update_queue: expected an integer, got '1e3' (must be a whole number)"},
     {"QuotedInteger", "engine:\n  threads: \"4\"\n",
-     "cfg.yaml:2:12: engine.threads: expected an integer, got the quoted string '4' (remove the "
+     "cfg.yaml:2:12: engine.threads: expected an integer or 'auto', got the quoted string '4' (remove the "
      "quotes)"},
     {"QuotedNumber", "frames:\n  tick_ms: '10'\n",
      "cfg.yaml:2:12: frames.tick_ms: expected a number, got the quoted string '10'"},
@@ -412,7 +416,7 @@ TEST(ConfigErrors, EveryProblemIsReportedInDocumentOrder) {
   const char* expected[] = {
       "cfg.yaml:2:3: engine.dimensions: unknown key",
       "cfg.yaml:3:14: engine.algorithm: unknown algorithm 'sap'",
-      "cfg.yaml:4:12: engine.threads: expected an integer, got '3x'",
+      "cfg.yaml:4:12: engine.threads: expected an integer or 'auto', got '3x'",
       "cfg.yaml:5:11: engine.margin: must be >= 0, got -0.5",
       "cfg.yaml:7:11: dds.domain: must be between 0 and 232, got 300",
       "cfg.yaml:9:14: dds.topics.updates: topic name 'bp_events' is also used by",
@@ -457,6 +461,22 @@ TEST(ConfigErrors, FailureLeavesTheOutputUnchanged) {
   EXPECT_EQ(c.source, "before");
   EXPECT_EQ(c.engine.threads, 7);
   EXPECT_EQ(ParseConfig("", kSource, nullptr).code(), StatusCode::kInvalidArgument);
+}
+
+TEST(ConfigValues, ThreadsAreAutoOrACount) {
+  Config c = ParseOk("engine:\n  threads: auto\n");
+  EXPECT_EQ(c.engine.threads, 0);
+  const unsigned hardware = std::thread::hardware_concurrency();
+  EXPECT_EQ(EngineThreads(c.engine),
+            hardware == 0 ? 1 : static_cast<int>(std::min(hardware, 256u)));
+  EXPECT_TRUE(Contains(ConfigToYaml(c), "\n  threads: auto\n")) << ConfigToYaml(c);
+  c = ParseOk("engine:\n  threads: 3\n");
+  EXPECT_EQ(c.engine.threads, 3);
+  EXPECT_EQ(EngineThreads(c.engine), 3);
+  EXPECT_TRUE(Contains(ConfigToYaml(c), "\n  threads: 3\n")) << ConfigToYaml(c);
+  // A single-threaded engine warns about a count, not about auto.
+  EXPECT_TRUE(ParseOk("engine:\n  algorithm: batch_sap\n  threads: auto\n").warnings.empty());
+  EXPECT_EQ(ParseOk("engine:\n  algorithm: batch_sap\n  threads: 2\n").warnings.size(), 1u);
 }
 
 TEST(ConfigValues, EveryKeyIsReadIncludingTheBounds) {
