@@ -15,6 +15,7 @@
 #include <utility>
 
 #include "yaml_reader.h"
+#include <sched.h>
 #include <yaml-cpp/yaml.h>
 
 namespace bp::service {
@@ -302,8 +303,12 @@ std::string YamlString(std::string_view text) {
 
 int EngineThreads(const EngineConfig& engine) {
   if (engine.threads > 0) return engine.threads;
-  const unsigned hardware = std::thread::hardware_concurrency();
-  return static_cast<int>(std::clamp(hardware, 1u, static_cast<unsigned>(kMaxThreads)));
+  int cpus = 0;
+  cpu_set_t set;
+  CPU_ZERO(&set);
+  if (sched_getaffinity(0, sizeof(set), &set) == 0) cpus = CPU_COUNT(&set);
+  if (cpus <= 0) cpus = static_cast<int>(std::thread::hardware_concurrency());
+  return std::clamp(cpus, 1, kMaxThreads);
 }
 
 std::string_view CoordinateTypeName(CoordinateType type) {

@@ -46,7 +46,7 @@ struct EngineConfig {
   int dimension = 3;                                   ///< 2 or 3
   CoordinateType coordinate = CoordinateType::kFloat;  ///< yaml: float | double | int32
   std::optional<double> cell_size;  ///< yaml: "auto" (nullopt, default) or a positive finite number
-  int threads = 0;      ///< yaml: "auto" (0, default: the machine's hardware threads) or 1..256
+  int threads = 0;                  ///< yaml: "auto" (0, default: EngineThreads) or 1..256
   double margin = 0.0;  ///< >= 0, finite; > 0 fattens boxes (events are then approximate)
 
   /// Member-wise equality.
@@ -171,10 +171,11 @@ std::string FindDefaultConfig();
 /// defaults with Cyclone's own default configuration (a warning says so).
 Status LoadConfigOrDefault(const std::string& path, Config* out);
 
-/// Canonical names: "float"/"double"/"int32".
-/// The engine's query threads: engine.threads, or for "auto" (0) the machine's hardware
-/// threads (std::thread::hardware_concurrency; 1 when unknown), at most 256.
+/// The engine's query threads: engine.threads, or for "auto" (0) the CPUs this process may run
+/// on (its affinity mask, so taskset and cpusets count; a container's CPU quota does not: set a
+/// count there), else std::thread::hardware_concurrency, else 1; at most 256.
 int EngineThreads(const EngineConfig& engine);
+/// Canonical names: "float"/"double"/"int32".
 std::string_view CoordinateTypeName(CoordinateType type);
 /// Canonical names: "end_of_frame"/"tick".
 std::string_view FrameBoundaryName(FrameBoundary boundary);

@@ -97,15 +97,15 @@ void Daemon::RequestStop() {
 }
 
 Status Daemon::Run() {
+  const size_t engine_threads = host_->GetStats().threads;  // 1 for the single-threaded engines
   spdlog::info(
       "broadphased {}: engine {} ({}-D, {}, {} thread{}), DDS domain {} partition '{}', topics {} "
       "/ {} / {} / {}, frames on {}, producer lease {} s, epoch {:016x}",
       daemon_name_, host_->Name(), host_->Dimension(),
-      CoordinateTypeName(config_.engine.coordinate), EngineThreads(config_.engine),
-      EngineThreads(config_.engine) == 1 ? "" : "s", config_.dds.domain, config_.dds.partition,
-      config_.dds.topics.updates, config_.dds.topics.events, config_.dds.topics.status,
-      config_.dds.topics.requests, FrameBoundaryName(config_.frames.boundary),
-      config_.producers.lease_s, epoch_);
+      CoordinateTypeName(config_.engine.coordinate), engine_threads, engine_threads == 1 ? "" : "s",
+      config_.dds.domain, config_.dds.partition, config_.dds.topics.updates,
+      config_.dds.topics.events, config_.dds.topics.status, config_.dds.topics.requests,
+      FrameBoundaryName(config_.frames.boundary), config_.producers.lease_s, epoch_);
   PublishStatus(wire::SERVING, false);
   serving_.store(true);
   interval_start_ = Clock::now();

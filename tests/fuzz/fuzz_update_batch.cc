@@ -40,6 +40,7 @@ std::unique_ptr<EngineHost> MakeHost(int dimension, bp::service::CoordinateType 
   config.algorithm = algorithm;
   config.dimension = dimension;
   config.coordinate = coordinate;
+  config.threads = 1;  // one thread: a run does not depend on the machine's CPUs
   std::unique_ptr<EngineHost> host;
   // A small capacity, so that CAPACITY rejections happen too.
   bp::Status s = bp::service::MakeEngineHost(config, 40, &host);

@@ -200,7 +200,8 @@ TEST(EngineHost, RandomBatchesMatchTheOracle) {
   }
 }
 
-// engine.threads reaches the grid engines: their pool has that many threads (it once did not).
+// engine.threads reaches the grid engines: their pool has that many threads (it once did not),
+// and auto resolves to EngineThreads.
 TEST(EngineHost, ThreadsReachTheGridEngines) {
   for (const char* algorithm : {"grid_segmented_sap", "grid_batch_sap", "grid_dense"}) {
     EngineConfig config;
@@ -209,7 +210,18 @@ TEST(EngineHost, ThreadsReachTheGridEngines) {
     std::unique_ptr<EngineHost> host;
     ASSERT_TRUE(MakeEngineHost(config, 1 << 20, &host).ok()) << algorithm;
     EXPECT_EQ(host->GetStats().threads, 3u) << algorithm;
+    // The default, auto: the CPUs the process may run on.
+    config.threads = 0;
+    ASSERT_TRUE(MakeEngineHost(config, 1 << 20, &host).ok()) << algorithm;
+    EXPECT_EQ(host->GetStats().threads, static_cast<size_t>(EngineThreads(config))) << algorithm;
+    EXPECT_GE(host->GetStats().threads, 1u) << algorithm;
   }
+  // A single-threaded engine says so whatever the setting.
+  EngineConfig config;
+  config.algorithm = "segmented_sap";
+  std::unique_ptr<EngineHost> host;
+  ASSERT_TRUE(MakeEngineHost(config, 1 << 20, &host).ok());
+  EXPECT_EQ(host->GetStats().threads, 1u);
 }
 
 // Updates reach the engine in runs through UpdateMany; a run ends before an item the host refuses
