@@ -14,10 +14,10 @@
 #include <sstream>
 #include <string>
 #include <string_view>
-#include <thread>
 #include <vector>
 
 #include <gtest/gtest.h>
+#include <sched.h>
 #include <stdlib.h>
 #include <unistd.h>
 
@@ -466,9 +466,11 @@ TEST(ConfigErrors, FailureLeavesTheOutputUnchanged) {
 TEST(ConfigValues, ThreadsAreAutoOrACount) {
   Config c = ParseOk("engine:\n  threads: auto\n");
   EXPECT_EQ(c.engine.threads, 0);
-  const unsigned hardware = std::thread::hardware_concurrency();
-  EXPECT_EQ(EngineThreads(c.engine),
-            hardware == 0 ? 1 : static_cast<int>(std::min(hardware, 256u)));
+  // Auto is the CPUs this process may run on (its affinity mask: `taskset -c 0` gives 1).
+  cpu_set_t set;
+  CPU_ZERO(&set);
+  ASSERT_EQ(sched_getaffinity(0, sizeof(set), &set), 0);
+  EXPECT_EQ(EngineThreads(c.engine), std::min(CPU_COUNT(&set), 256));
   EXPECT_TRUE(Contains(ConfigToYaml(c), "\n  threads: auto\n")) << ConfigToYaml(c);
   c = ParseOk("engine:\n  threads: 3\n");
   EXPECT_EQ(c.engine.threads, 3);
