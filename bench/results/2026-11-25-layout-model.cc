@@ -7,19 +7,31 @@
 //   g++ -O2 -o layout-model 2026-11-25-layout-model.cc && ./layout-model
 #include <algorithm>
 #include <chrono>
-#include <cstdio>
 #include <cstdint>
+#include <cstdio>
 #include <numeric>
 #include <random>
 #include <vector>
+
 #include <immintrin.h>
 
 static constexpr size_t kCells = 6859;
-static double Now() { return std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now().time_since_epoch()).count(); }
-struct Rec { const char* rows; const char* flags; const char* pairs; const char* global; char pad[320 - 32]; };
+static double Now() {
+  return std::chrono::duration<double, std::milli>(
+             std::chrono::steady_clock::now().time_since_epoch())
+      .count();
+}
+struct Rec {
+  const char* rows;
+  const char* flags;
+  const char* pairs;
+  const char* global;
+  char pad[320 - 32];
+};
 __attribute__((target("avx512f"))) static uint64_t Work(const char* p, size_t bytes) {
   __m512i acc = _mm512_setzero_si512();
-  for (size_t off = 0; off + 64 <= bytes; off += 64) acc = _mm512_xor_si512(acc, _mm512_loadu_si512(p + off));
+  for (size_t off = 0; off + 64 <= bytes; off += 64)
+    acc = _mm512_xor_si512(acc, _mm512_loadu_si512(p + off));
   alignas(64) uint64_t lanes[8];
   _mm512_store_si512(lanes, acc);
   uint64_t s = 0;
@@ -38,7 +50,10 @@ int main() {
   std::vector<Rec*> recs(kCells);
   for (size_t i = 0; i < kCells; ++i) {
     Rec* r = reinterpret_cast<Rec*>(alloc());
-    r->rows = alloc(); r->flags = alloc(); r->pairs = alloc(); r->global = alloc();
+    r->rows = alloc();
+    r->flags = alloc();
+    r->pairs = alloc();
+    r->global = alloc();
     recs[i] = r;
   }
   std::vector<uint32_t> rnd(kCells * 8);
@@ -46,15 +61,21 @@ int main() {
   auto cur = [&] {
     uint64_t s = 0;
     for (size_t i = 0; i < kCells; ++i) {
-      if (i + 4 < kCells) for (int l = 0; l < 320; l += 64) __builtin_prefetch(reinterpret_cast<char*>(recs[i + 4]) + l);
-      if (i + 2 < kCells) { const Rec* r = recs[i + 2];
+      if (i + 4 < kCells)
+        for (int l = 0; l < 320; l += 64)
+          __builtin_prefetch(reinterpret_cast<char*>(recs[i + 4]) + l);
+      if (i + 2 < kCells) {
+        const Rec* r = recs[i + 2];
         for (int l = 0; l < 1152; l += 64) __builtin_prefetch(r->rows + l);
         for (int l = 0; l < 192; l += 64) __builtin_prefetch(r->flags + l);
-        __builtin_prefetch(r->global); }
+        __builtin_prefetch(r->global);
+      }
       const Rec* r = recs[i];
       s += Work(r->rows, 1152) + Work(r->flags, 192);
-      for (int k = 0; k < 5; ++k) s += *reinterpret_cast<const uint32_t*>(r->pairs + rnd[i * 8 + k] * 6);
-      for (int k = 5; k < 8; ++k) s += *reinterpret_cast<const uint32_t*>(r->global + rnd[i * 8 + k] * 4);
+      for (int k = 0; k < 5; ++k)
+        s += *reinterpret_cast<const uint32_t*>(r->pairs + rnd[i * 8 + k] * 6);
+      for (int k = 5; k < 8; ++k)
+        s += *reinterpret_cast<const uint32_t*>(r->global + rnd[i * 8 + k] * 4);
     }
     return s;
   };
@@ -63,10 +84,13 @@ int main() {
     const size_t chunk = 320 + 1152 + 192 + 288 + 192;  // 2144
     for (size_t i = 0; i < kCells; ++i) {
       const char* c = flat.data() + i * chunk;
-      if (pf && i + 2 < kCells) for (size_t l = 0; l < chunk; l += 64) __builtin_prefetch(c + 2 * chunk + l);
+      if (pf && i + 2 < kCells)
+        for (size_t l = 0; l < chunk; l += 64) __builtin_prefetch(c + 2 * chunk + l);
       s += Work(c + 320, 1152) + Work(c + 320 + 1152, 192) + *reinterpret_cast<const uint64_t*>(c);
-      for (int k = 0; k < 5; ++k) s += *reinterpret_cast<const uint32_t*>(c + 1664 + rnd[i * 8 + k] * 6);
-      for (int k = 5; k < 8; ++k) s += *reinterpret_cast<const uint32_t*>(c + 1952 + rnd[i * 8 + k] * 4);
+      for (int k = 0; k < 5; ++k)
+        s += *reinterpret_cast<const uint32_t*>(c + 1664 + rnd[i * 8 + k] * 6);
+      for (int k = 5; k < 8; ++k)
+        s += *reinterpret_cast<const uint32_t*>(c + 1952 + rnd[i * 8 + k] * 4);
     }
     return s;
   };
@@ -75,7 +99,9 @@ int main() {
     double t[3];
     for (int k = 0; k < 3; ++k) {
       for (size_t o = 0; o < evict.size(); o += 64) evict[o]++;
-      double t0 = Now(); sink += k == 0 ? cur() : cont(k == 2); t[k] = Now() - t0;
+      double t0 = Now();
+      sink += k == 0 ? cur() : cont(k == 2);
+      t[k] = Now() - t0;
     }
     printf("current %.3f contiguous %.3f contiguous+pf %.3f ms\n", t[0], t[1], t[2]);
   }
