@@ -275,13 +275,13 @@ class GridCore {
   // clamp to [-kLimit, kLimit - 1] (NaN to -kLimit), a rounded addition of kLimit (the sum is
   // then at least 0, where truncation is floor) and a truncation. That is floor((x - origin) /
   // size) but where the addition rounds a quotient just below an integer up to it (within 2^-32
-  // at 3-D), which keeps the map monotone. No branches, and no std::floor: baseline x86-64 has
-  // no floor instruction, and GCC's emulation (sign, NaN and range fix-ups) made the six calls of
-  // an update most of the routing's instructions (perf on S1-10k: 74% of UpdateObject).
+  // at 3-D), which keeps the map monotone. No std::floor: baseline x86-64 has no floor
+  // instruction, and GCC's emulation (sign, NaN and range fix-ups) in an update's six calls held
+  // 74% of UpdateObject's samples (perf, S1-10k).
   int64_t CellOf(Coord x, size_t axis) const {
     constexpr double kLow = -static_cast<double>(kLimit), kHigh = static_cast<double>(kLimit - 1);
     double q = (static_cast<double>(x) - origin_[axis]) * inv_size_;
-    q = q > kLow ? q : kLow;  // maxsd: NaN takes kLow
+    q = q > kLow ? q : kLow;  // NaN takes kLow
     q = q < kHigh ? q : kHigh;
     return static_cast<int64_t>(q + static_cast<double>(kLimit)) - kLimit;
   }
