@@ -6,6 +6,7 @@
 #include "bp/grid.h"
 
 #include <algorithm>
+#include <cmath>
 #include <cstdint>
 #include <limits>
 #include <random>
@@ -166,6 +167,24 @@ TEST(Grid, FarFromTheOriginDouble) {
     fine_options.cell_size = 0.5;
     GridSegmentedSap<3, double> fine(fine_options);
     RandomScene<3, double>(&fine, origin, 1.0, 10);
+  }
+}
+
+// One axis: 63 bits of cell coordinate (kLimit 2^62), where CellOf cannot take the rounded
+// offset it uses for two axes and more (2^62 + q loses the quotient's low bits and overflows
+// int64 at the top clamp). Exact against brute force near the origin and far beyond the clamped
+// cell range, and the automatic size still makes cells of a few objects each.
+TEST(Grid, OneAxis) {
+  for (double origin : {0.0, 1e12, -1e12, 1e300, -1e300}) {
+    GridDenseOptions options;
+    options.cell_size = 1.0;  // far from the origin: indices beyond 2^62, clamped
+    GridDense<1, double> engine(options);
+    RandomScene<1, double>(&engine, origin, origin == 0 ? 1.0 : std::abs(origin) * 1e-6, 12);
+    GridDenseOptions few;
+    few.objects_per_cell = 8;  // 120 objects over 18 units: cells of about 1.2
+    GridDense<1, float> automatic(few);
+    RandomScene<1, float>(&automatic, 0.0, 1.0, 13);
+    EXPECT_GE(automatic.GetStats().cells, 8u) << origin;
   }
 }
 

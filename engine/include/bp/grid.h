@@ -272,18 +272,24 @@ class GridCore {
     }
   }
   // Monotone in x: a rounded subtraction of a constant, a product by a positive constant, a
-  // clamp to [-kLimit, kLimit - 1] (NaN to -kLimit), a rounded addition of kLimit (the sum is
-  // then at least 0, where truncation is floor) and a truncation. That is floor((x - origin) /
-  // size) but where the addition rounds a quotient just below an integer up to it (within 2^-32
-  // at 3-D), which keeps the map monotone. No std::floor: baseline x86-64 has no floor
-  // instruction, and GCC's emulation (sign, NaN and range fix-ups) in an update's six calls held
-  // 74% of UpdateObject's samples (perf, S1-10k).
+  // clamp to [-kLimit, kLimit - 1] (NaN to -kLimit), then floor. With two axes or more (kLimit
+  // at most 2^30) floor is a rounded addition of kLimit (the sum is then at least 0, where
+  // truncation is floor) and a truncation: that rounds a quotient just below an integer up to
+  // it (within 2^-32 at 3-D), which keeps the map monotone. No std::floor there: baseline x86-64
+  // has no floor instruction, and GCC's emulation (sign, NaN and range fix-ups) in an update's
+  // six calls held 74% of UpdateObject's samples (perf, S1-10k). One axis (kLimit 2^62) keeps
+  // std::floor: the sum would drop the quotient's low bits and overflow int64 at the top.
   int64_t CellOf(Coord x, size_t axis) const {
     constexpr double kLow = -static_cast<double>(kLimit), kHigh = static_cast<double>(kLimit - 1);
     double q = (static_cast<double>(x) - origin_[axis]) * inv_size_;
     q = q > kLow ? q : kLow;  // NaN takes kLow
-    q = q < kHigh ? q : kHigh;
-    return static_cast<int64_t>(q + static_cast<double>(kLimit)) - kLimit;
+    if constexpr (kLimit <= (int64_t{1} << 31)) {
+      q = q < kHigh ? q : kHigh;
+      return static_cast<int64_t>(q + static_cast<double>(kLimit)) - kLimit;
+    } else {
+      if (q >= kHigh) return kLimit - 1;
+      return static_cast<int64_t>(std::floor(q));
+    }
   }
   void RangeOf(const BoxType& box, CellCoord* out_lo, CellCoord* out_hi) const {
     for (size_t a = 0; a < kAxes; ++a) {
