@@ -55,7 +55,8 @@ struct Config {
   double objects_per_cell = 0;  // 0: the cell type's default (bp::kDefaultObjectsPerCell)
   uint32_t max_cells = bp::GridSegmentedSapOptions().max_cells_per_object;
   unsigned threads = 1;         // grid engines
-  std::string kernel = "auto";  // grid_dense: "auto" (AVX-512 where the CPU has it) or "portable"
+  std::string kernel = "auto";  // grid_dense: "auto" (the widest the CPU has), "avx512", "avx2" or
+                                // "portable" (a kernel the CPU lacks falls back to a narrower one)
   uint32_t big_boxes = 0;       // static boxes of big_width cube widths added to the scene
   double big_width = 50;
   bool world_box = false;         // one static box covering the whole scene
@@ -160,9 +161,25 @@ double ObjectsPerCell(const Config& cfg) {
                                     : bp::kDefaultObjectsPerCell<bp::SegmentedSapOptions>;
 }
 
+bp::DenseKernel RequestedKernel(const Config& cfg) {
+  for (bp::DenseKernel k :
+       {bp::DenseKernel::kAvx512, bp::DenseKernel::kAvx2, bp::DenseKernel::kPortable}) {
+    if (cfg.kernel == bp::DenseKernelName(k)) return k;
+  }
+  return bp::DenseKernel::kAuto;
+}
+
+// The kernel the dense cells run for cfg's coordinate type on this CPU.
+bp::DenseKernel ResolvedKernel(const Config& cfg) {
+  const bp::DenseKernel k = RequestedKernel(cfg);
+  if (cfg.coord == "double") return bp::detail::ResolveDenseKernel<double>(k);
+  if (cfg.coord == "int32") return bp::detail::ResolveDenseKernel<int32_t>(k);
+  return bp::detail::ResolveDenseKernel<float>(k);
+}
+
 bp::DenseCellOptions DenseOptions(const Config& cfg) {
   bp::DenseCellOptions options;
-  options.wide_kernel = cfg.kernel != "portable";
+  options.kernel = RequestedKernel(cfg);
   return options;
 }
 
@@ -353,8 +370,7 @@ void PrintJson(const std::string& scenario, const SceneParams& p, int frames, co
       << ",\"large_objects\":" << r.last.large_objects;
   }
   if (cfg.engine == "grid_dense") {
-    const bool wide = cfg.kernel != "portable" && bp::detail::CpuHasAvx512();
-    o << ",\"kernel\":\"" << (wide ? "avx512" : "portable") << "\""
+    o << ",\"kernel\":\"" << bp::DenseKernelName(ResolvedKernel(cfg)) << "\""
       << ",\"cell_slots\":" << r.last.cell_slots;
   }
   if (cfg.engine == "segmented_sap" || cfg.engine == "grid_segmented_sap") {
@@ -734,9 +750,10 @@ int main(int argc, char** argv) {
       ->check(CLI::Range(1u, 1000000u))
       ->capture_default_str();
   app.add_option("--kernel", cfg.kernel,
-                 "grid_dense: the cells' box-test kernel, auto (AVX-512 where the CPU has it, for "
-                 "float, double and int32) or portable")
-      ->check(CLI::IsMember({"auto", "portable"}))
+                 "grid_dense: the cells' box-test kernel: auto (the widest the CPU has), avx512, "
+                 "avx2 (float, double and int32 on x86-64) or portable; one the CPU lacks falls "
+                 "back to the next narrower, and the output's \"kernel\" names the one that ran")
+      ->check(CLI::IsMember({"auto", "avx512", "avx2", "portable"}))
       ->capture_default_str();
   app.add_option("--coord", cfg.coord, "coordinate type")
       ->check(CLI::IsMember({"float", "double", "int32"}))

@@ -445,31 +445,31 @@ TEST(Grid, StatsTimeTheQueryPhases) {
   check(sap, false);
 }
 
-// The dense cell's modes against each other, directly on cells: the pair matrix with the
-// AVX-512 kernel and with the portable one, the rows (no matrix, then and now tested: few and
-// many changes per query, both paths of FindChanges) with each kernel, and a matrix capped at
-// 64 slots. Random
-// boxes on a small lattice (many exact touches and equal coordinates), random erases, updates
-// and inserts; phases alternate between handles below 24 and below 70, and a low phase starts by
-// erasing the high handles and compacting, so that the capped cell drops its matrix and builds
-// it again. Every change list is compared, and every cell validated (matrix against boxes).
+// The dense cell's modes against each other, directly on cells: the pair matrix with each
+// kernel (AVX-512, AVX2 and portable; one the CPU lacks runs the next narrower), the rows (no
+// matrix, then and now tested: few and many changes per query, both paths of FindChanges) with
+// each kernel, and a matrix capped at 64 slots. Random boxes on a small lattice (many exact
+// touches and equal coordinates), random erases, updates and inserts; phases alternate between
+// handles below 24 and below 70, and a low phase starts by erasing the high handles and
+// compacting, so that the capped cell drops its matrix and builds it again. Every change list is
+// compared, and every cell validated (matrix against boxes).
 template <class T>
-void ExpectCellModesAgree(uint64_t seed, bool wide) {
+void ExpectCellModesAgree(uint64_t seed) {
   using Core = detail::DenseCellCore<3, T>;
   using HB = detail::HandleBox<3, T>;
-  DenseCellOptions portable, rows, capped, portable_rows;
-  portable.wide_kernel = false;
-  rows.matrix_slots = 0;
-  capped.matrix_slots = 64;
-  rows.wide_kernel = capped.wide_kernel = wide;
-  portable_rows.matrix_slots = 0;
-  portable_rows.wide_kernel = false;
+  // Core 0: the matrix and the widest kernel; 1: capped matrix; then matrix and rows per kernel.
   std::vector<Core> cores;
   cores.emplace_back(DenseCellOptions{});
-  cores.emplace_back(portable);
-  cores.emplace_back(rows);
+  DenseCellOptions capped;
+  capped.matrix_slots = 64;
   cores.emplace_back(capped);
-  cores.emplace_back(portable_rows);
+  for (DenseKernel k : {DenseKernel::kAvx512, DenseKernel::kAvx2, DenseKernel::kPortable}) {
+    DenseCellOptions matrix, rows;
+    matrix.kernel = rows.kernel = k;
+    rows.matrix_slots = 0;
+    cores.emplace_back(matrix);
+    cores.emplace_back(rows);
+  }
   std::mt19937_64 rng(seed);
   auto coord = [&] { return static_cast<T>(static_cast<int>(rng() % 12)); };
   auto box = [&] {
@@ -539,25 +539,53 @@ void ExpectCellModesAgree(uint64_t seed, bool wide) {
         live[from] = false;
       }
     }
+    for (size_t c = 2; c < cores.size(); ++c) EXPECT_EQ(cores[c].has_matrix(), c % 2 == 0);
     EXPECT_TRUE(cores[0].has_matrix());
-    EXPECT_FALSE(cores[2].has_matrix());
-    EXPECT_FALSE(cores[4].has_matrix());
-    switches += cores[3].has_matrix() != had_matrix;
-    had_matrix = cores[3].has_matrix();
+    switches += cores[1].has_matrix() != had_matrix;
+    had_matrix = cores[1].has_matrix();
   }
   EXPECT_GT(changes, 1000u);  // the scene is not idle
   EXPECT_GE(switches, 4u);    // the capped cell dropped its matrix and built it again
 }
 
 TEST(DenseCell, MatrixRowsAndKernelsReportTheSameChanges) {
-  const bool wide = detail::CpuHasAvx512();
   for (uint64_t seed : {uint64_t{1}, uint64_t{2}, uint64_t{3}}) {
-    ExpectCellModesAgree<float>(seed, wide);
-    ExpectCellModesAgree<double>(seed, wide);
-    ExpectCellModesAgree<int32_t>(seed, wide);
+    ExpectCellModesAgree<float>(seed);
+    ExpectCellModesAgree<double>(seed);
+    ExpectCellModesAgree<int32_t>(seed);
   }
-  // Without AVX-512 every core ran the portable kernel (the comparison still covers the modes).
-  RecordProperty("kernels", wide ? "avx512 and portable" : "portable only");
+  // Which kernels ran (a kernel the CPU lacks ran as the next narrower one).
+  std::string kernels;
+  for (DenseKernel k : {DenseKernel::kAvx512, DenseKernel::kAvx2, DenseKernel::kPortable}) {
+    if (detail::ResolveDenseKernel<float>(k) == k) {
+      kernels += std::string(kernels.empty() ? "" : " ") + DenseKernelName(k);
+    }
+  }
+  RecordProperty("kernels", kernels);
+}
+
+// A requested kernel resolves to itself when the CPU has it, else to the next narrower one, and
+// a cell reports the one it runs; coordinate types without wide kernels run the portable one.
+TEST(DenseCell, KernelResolvesToWhatTheCpuRuns) {
+  using detail::ResolveDenseKernel;
+  const bool avx512 = detail::CpuHasAvx512(), avx2 = detail::CpuHasAvx2();
+  const DenseKernel widest = avx512 ? DenseKernel::kAvx512
+                             : avx2 ? DenseKernel::kAvx2
+                                    : DenseKernel::kPortable;
+  EXPECT_EQ(ResolveDenseKernel<float>(DenseKernel::kAuto), widest);
+  EXPECT_EQ(ResolveDenseKernel<double>(DenseKernel::kAuto), widest);
+  EXPECT_EQ(ResolveDenseKernel<int32_t>(DenseKernel::kAuto), widest);
+  EXPECT_EQ(ResolveDenseKernel<float>(DenseKernel::kAvx512), widest);
+  EXPECT_EQ(ResolveDenseKernel<float>(DenseKernel::kAvx2),
+            avx2 ? DenseKernel::kAvx2 : DenseKernel::kPortable);
+  EXPECT_EQ(ResolveDenseKernel<float>(DenseKernel::kPortable), DenseKernel::kPortable);
+  EXPECT_EQ(ResolveDenseKernel<int64_t>(DenseKernel::kAuto), DenseKernel::kPortable);
+  DenseCellOptions o;
+  o.kernel = DenseKernel::kAvx2;
+  const detail::DenseCellCore<2, double> cell(o);
+  EXPECT_EQ(cell.kernel(), ResolveDenseKernel<double>(o.kernel));
+  EXPECT_STREQ(DenseKernelName(DenseKernel::kAvx2), "avx2");
+  RecordProperty("widest", DenseKernelName(widest));
 }
 
 // A dense cell whose population falls gives its trailing blocks back: the live slots above are

@@ -110,9 +110,10 @@ struct EngineConfig {
 // that a test which sees them only as Broadphase<K, T> does not compile every engine again: under
 // ASan the typed suites took half an hour to build when each of them did.
 /// The cell type of a test grid (kDensePortable: dense cells forced onto the portable kernel, so
-/// that a CPU with AVX-512 checks both kernels; kDenseRows: dense cells that never keep a pair
-/// matrix; kDenseSmallMatrix: dense cells whose matrix is capped at 32 slots, so that cells
-/// cross between the two modes).
+/// that a CPU with a wide kernel checks the portable one too; kDenseRows: dense cells that never
+/// keep a pair matrix; kDenseSmallMatrix: dense cells whose matrix is capped at 32 slots, so that
+/// cells cross between the two modes, on the AVX2 kernel where the CPU has it, so that a CPU
+/// with AVX-512 checks AVX2 too).
 enum class CellKind { kSegmented, kBatch, kDense, kDensePortable, kDenseRows, kDenseSmallMatrix };
 /// True iff the kind is one of dense cells.
 constexpr bool IsDense(CellKind kind) {
@@ -151,7 +152,7 @@ std::unique_ptr<Broadphase<K, T>> NewDynamicOctree(const DynamicOctreeOptions& o
 /// Segmented and batch cells (test_engines_grid.cc).
 template <int K, class T>
 std::unique_ptr<Broadphase<K, T>> NewSapCellGrid(const GridSpec& spec);
-/// Dense cells, AVX-512 or portable (test_engines_dense.cc).
+/// Dense cells, on the widest kernel, the portable one or AVX2 (test_engines_dense.cc).
 template <int K, class T>
 std::unique_ptr<Broadphase<K, T>> NewDenseGrid(const GridSpec& spec);
 

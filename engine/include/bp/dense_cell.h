@@ -41,6 +41,7 @@
 #include <limits>
 #include <span>
 #include <string>
+#include <type_traits>
 #include <vector>
 
 #if defined(__x86_64__)
@@ -56,12 +57,35 @@
 
 namespace bp {
 
+/// The dense cell's box-test kernels: they give the same events (the differential suite runs
+/// each that the CPU has), at different speeds.
+enum class DenseKernel : uint8_t {
+  kAuto,      ///< the widest this CPU runs for the coordinate type
+  kAvx512,    ///< AVX-512F (x86-64; float, double and int32 coordinates)
+  kAvx2,      ///< AVX2 (x86-64; float, double and int32 coordinates)
+  kPortable,  ///< plain C++ (whatever the compiler makes of it for the build's target)
+};
+
+/// The name of a kernel: "auto", "avx512", "avx2" or "portable".
+inline const char* DenseKernelName(DenseKernel k) {
+  switch (k) {
+    case DenseKernel::kAuto:
+      return "auto";
+    case DenseKernel::kAvx512:
+      return "avx512";
+    case DenseKernel::kAvx2:
+      return "avx2";
+    case DenseKernel::kPortable:
+      return "portable";
+  }
+  return "?";
+}
+
 /// Tuning of the dense cell (its cost is set mostly by the grid's objects_per_cell).
 struct DenseCellOptions {
-  /// Test boxes with the AVX-512 kernel when the CPU has it (float, double and int32
-  /// coordinates on x86-64); false, or another CPU or type, takes the portable kernel. Both
-  /// give the same events (the differential suite runs each).
-  bool wide_kernel = true;
+  /// The box-test kernel. A kernel this CPU (or the coordinate type) lacks falls back to the
+  /// next narrower one: AVX-512, AVX2, portable. DenseCellCore::kernel() says which runs.
+  DenseKernel kernel = DenseKernel::kAuto;
   /// A cell of up to this many slots keeps its pairs as a bit matrix (slots x slots bits: 32 KiB
   /// at 512), so a changed object is tested against the cell's boxes once, now, instead of also
   /// against its old box; a cell that grows beyond it drops the matrix and tests then and now,
@@ -132,11 +156,116 @@ template <class T>
 inline constexpr bool kHasWideRows = requires {
   WideRows<T>::Overlap;
 };
+
+#define BP_AVX2_TARGET __attribute__((target("avx2")))
+
+/// True iff this CPU (and its OS) runs AVX2 code.
+inline bool CpuHasAvx2() {
+  static const bool has = [] {
+    __builtin_cpu_init();
+    return __builtin_cpu_supports("avx2") != 0;
+  }();
+  return has;
+}
+
+/// A block of 16 slots under AVX2: bit i of Block's result is set iff slot i's box overlaps
+/// [lo, hi] on every axis (closed, the scalar <= exactly; live flags not applied). The rows of
+/// all axes are tested in registers and turned into bits once (the AVX-512 kernel, with mask
+/// registers, does it per axis). One struct per type, since each compares its own way.
+template <class T>
+struct Avx2Rows {};  // no AVX2 kernel for T
+template <>
+struct Avx2Rows<float> {
+  template <size_t kAxes>
+  BP_AVX2_TARGET static uint32_t Block(const float* block, const float* lo, const float* hi) {
+    __m256 m[2];
+    for (size_t a = 0; a < kAxes; ++a) {
+      const __m256 vlo = _mm256_set1_ps(lo[a]), vhi = _mm256_set1_ps(hi[a]);
+      const float* rlo = block + 2 * a * 16;
+      for (int half = 0; half < 2; ++half) {
+        const __m256 t =
+            _mm256_and_ps(_mm256_cmp_ps(_mm256_loadu_ps(rlo + 8 * half), vhi, _CMP_LE_OQ),
+                          _mm256_cmp_ps(vlo, _mm256_loadu_ps(rlo + 16 + 8 * half), _CMP_LE_OQ));
+        m[half] = a == 0 ? t : _mm256_and_ps(m[half], t);
+      }
+    }
+    return static_cast<uint32_t>(_mm256_movemask_ps(m[0])) |
+           static_cast<uint32_t>(_mm256_movemask_ps(m[1])) << 8;
+  }
+};
+template <>
+struct Avx2Rows<double> {
+  template <size_t kAxes>
+  BP_AVX2_TARGET static uint32_t Block(const double* block, const double* lo, const double* hi) {
+    __m256d m[4];
+    for (size_t a = 0; a < kAxes; ++a) {
+      const __m256d vlo = _mm256_set1_pd(lo[a]), vhi = _mm256_set1_pd(hi[a]);
+      const double* rlo = block + 2 * a * 16;
+      for (int q = 0; q < 4; ++q) {
+        const __m256d t =
+            _mm256_and_pd(_mm256_cmp_pd(_mm256_loadu_pd(rlo + 4 * q), vhi, _CMP_LE_OQ),
+                          _mm256_cmp_pd(vlo, _mm256_loadu_pd(rlo + 16 + 4 * q), _CMP_LE_OQ));
+        m[q] = a == 0 ? t : _mm256_and_pd(m[q], t);
+      }
+    }
+    uint32_t bits = 0;
+    for (int q = 0; q < 4; ++q) bits |= static_cast<uint32_t>(_mm256_movemask_pd(m[q])) << (4 * q);
+    return bits;
+  }
+};
+template <>
+struct Avx2Rows<int32_t> {
+  // AVX2 compares integers by > only: a slot fails where rlo > hi or lo > rhi on some axis.
+  template <size_t kAxes>
+  BP_AVX2_TARGET static uint32_t Block(const int32_t* block, const int32_t* lo, const int32_t* hi) {
+    __m256i bad[2] = {_mm256_setzero_si256(), _mm256_setzero_si256()};
+    for (size_t a = 0; a < kAxes; ++a) {
+      const __m256i vlo = _mm256_set1_epi32(lo[a]), vhi = _mm256_set1_epi32(hi[a]);
+      const int32_t* rlo = block + 2 * a * 16;
+      for (int half = 0; half < 2; ++half) {
+        const auto* l = reinterpret_cast<const __m256i*>(rlo + 8 * half);
+        const auto* h = reinterpret_cast<const __m256i*>(rlo + 16 + 8 * half);
+        bad[half] = _mm256_or_si256(
+            bad[half], _mm256_or_si256(_mm256_cmpgt_epi32(_mm256_loadu_si256(l), vhi),
+                                       _mm256_cmpgt_epi32(vlo, _mm256_loadu_si256(h))));
+      }
+    }
+    const auto fail = static_cast<uint32_t>(_mm256_movemask_ps(_mm256_castsi256_ps(bad[0]))) |
+                      static_cast<uint32_t>(_mm256_movemask_ps(_mm256_castsi256_ps(bad[1]))) << 8;
+    return ~fail & 0xFFFFu;
+  }
+};
+/// The live flags (0/1) of a block of 16 slots as bits, under AVX2 (flag bit 0 to the sign).
+BP_AVX2_TARGET inline uint32_t Avx2Live(const uint32_t* flags) {
+  const auto* v = reinterpret_cast<const __m256i*>(flags);
+  const __m256 lo = _mm256_castsi256_ps(_mm256_slli_epi32(_mm256_loadu_si256(v), 31));
+  const __m256 hi = _mm256_castsi256_ps(_mm256_slli_epi32(_mm256_loadu_si256(v + 1), 31));
+  return static_cast<uint32_t>(_mm256_movemask_ps(lo)) |
+         static_cast<uint32_t>(_mm256_movemask_ps(hi)) << 8;
+}
+template <class T>
+inline constexpr bool kHasAvx2Rows =
+    std::is_same_v<T, float> || std::is_same_v<T, double> || std::is_same_v<T, int32_t>;
 #else
 inline bool CpuHasAvx512() { return false; }
+inline bool CpuHasAvx2() { return false; }
 template <class T>
 inline constexpr bool kHasWideRows = false;
+template <class T>
+inline constexpr bool kHasAvx2Rows = false;
 #endif
+
+/// The kernel a dense cell over coordinates T runs when `requested` is asked for on this CPU
+/// (never kAuto): the requested one, or the next narrower one this CPU and T have.
+template <class T>
+DenseKernel ResolveDenseKernel(DenseKernel requested) {
+  if (requested == DenseKernel::kPortable) return requested;
+  if (requested == DenseKernel::kAuto || requested == DenseKernel::kAvx512) {
+    if (kHasWideRows<T> && CpuHasAvx512()) return DenseKernel::kAvx512;
+  }
+  if (kHasAvx2Rows<T> && CpuHasAvx2()) return DenseKernel::kAvx2;
+  return DenseKernel::kPortable;
+}
 
 template <int K, Coordinate T>
 class DenseCellCore {
@@ -148,7 +277,7 @@ class DenseCellCore {
   using Options = DenseCellOptions;
 
   explicit DenseCellCore(const Options& options = Options())
-      : options_(options), wide_(kHasWideRows<T> && options.wide_kernel && CpuHasAvx512()) {
+      : options_(options), kernel_(ResolveDenseKernel<T>(options.kernel)) {
     options_.matrix_slots = std::min(options_.matrix_slots, kMaxMatrixSlots);
   }
 
@@ -156,8 +285,11 @@ class DenseCellCore {
              std::span<const HandleBox<K, T>> inserts) {
     tests_ = 0;
     Scratch& s = ThreadScratch();
-    s.order.clear();
-    s.before.clear();
+    // The lists only grow (written by index: a push_back per changed slot was a call, out of
+    // line, in GCC's build of the benchmark).
+    const size_t ops = erases.size() + updates.size() + inserts.size();
+    if (s.order.size() < ops) s.order.resize(ops);
+    s.count = 0;
     size_t top = size_;
     for (const auto& hb : inserts) {
       top = std::max(top, (size_t{hb.handle} + kBlock) / kBlock * kBlock);
@@ -165,6 +297,7 @@ class DenseCellCore {
     BP_ASSERT(top <= std::numeric_limits<uint32_t>::max());
     ChooseMode(top);
     if (top > size_) Resize(top);
+    if (!matrix_ && s.before.size() < ops) s.before.resize(ops);
     for (uint32_t h : erases) {
       BP_ASSERT(h < size_ && is_[h] != 0);
       Mark(s, h, true);
@@ -182,7 +315,7 @@ class DenseCellCore {
       Store(h, box);
     }
     live_ = live_ + inserts.size() - erases.size();
-    if (!s.order.empty()) FindChanges(s);
+    if (s.count != 0) FindChanges(s);
     if (live_ == 0) Resize(0);  // an emptied cell is recycled by the grid with fresh handles
   }
 
@@ -213,6 +346,8 @@ class DenseCellCore {
   uint32_t slots() const { return size_; }
   /// True iff slot h holds a live object.
   bool holds(uint32_t h) const { return h < size_ && is_[h] != 0; }
+  /// The box-test kernel this cell runs (DenseCellOptions::kernel, resolved for this CPU).
+  DenseKernel kernel() const { return kernel_; }
   /// True iff the cell keeps its pairs as a bit matrix (see DenseCellOptions::matrix_slots).
   bool has_matrix() const { return matrix_; }
 
@@ -300,14 +435,15 @@ class DenseCellCore {
   };
   // Per-thread scratch of one Apply: the rows as they were ("then"), which slots changed, and
   // per block the slots that did not change and are live (a block without any holds only pairs
-  // that its changed slots decide); for the matrix scan, per block the changed slots done.
+  // that its changed slots decide).
   // The changed slots' order and old states are per thread too (not per cell): the lists are
   // needed only inside Apply, and a per-cell list is one more line to miss per touched cell.
   struct Scratch {
     std::vector<T> then_rows;
-    std::vector<uint32_t> then_live, changed, steady, done;
-    std::vector<uint32_t> order;  // the query's changed slots, in order
-    std::vector<Before> before;   // their states at the last query
+    std::vector<uint32_t> then_live, changed, steady;
+    std::vector<uint32_t> order;  // the query's changed slots, in order: order[0, count)
+    std::vector<Before> before;   // their states at the last query (rows mode): [0, count)
+    size_t count = 0;
   };
   static Scratch& ThreadScratch() {
     thread_local Scratch scratch;
@@ -359,8 +495,8 @@ class DenseCellCore {
     size_ = static_cast<uint32_t>(n);
   }
   void Mark(Scratch& s, uint32_t h, bool live) {
-    s.order.push_back(h);
-    if (!matrix_) s.before.push_back(Before{live ? BoxAt(h) : Box<K, T>{}, live ? 1u : 0u});
+    if (!matrix_) s.before[s.count] = Before{live ? BoxAt(h) : Box<K, T>{}, live ? 1u : 0u};
+    s.order[s.count++] = h;
   }
 
   // ---- the bit matrix: bit j % kBlock of pairs_[h * blocks + j / kBlock] is set iff slots h and
@@ -413,24 +549,25 @@ class DenseCellCore {
   // The matrix query: each changed slot c, in order, is tested now against the cell's live
   // slots, and every bit where that differs from c's row is a changed pair, reported and
   // flipped at once (in c's row and its partner's). A pair of two changed slots is thus
-  // reported by the first of them and agrees from the second's side; the AVX-512 scan skips a
-  // block whose live and paired slots are all changed slots already done (the portable one
-  // tests it: its bits then agree).
+  // reported by the first of them and agrees from the second's side; the AVX-512 and AVX2
+  // scans skip a block whose live and paired slots are all changed slots already done (the
+  // portable one tests it: its bits then agree).
   void FindChangesMatrix(Scratch& s) {
     const uint32_t blocks = size_ / kBlock;
-    s.done.assign(blocks, 0);
+    uint32_t done[kMaxMatrixBlocks];  // per block, the changed slots done
+    std::fill_n(done, blocks, 0u);
     Hit hits[kMaxMatrixBlocks];
-    for (const uint32_t c : s.order) {
-      uint32_t n;
+    for (const uint32_t c : std::span(s.order.data(), s.count)) {
+      uint32_t n = 0;
 #ifdef BP_DENSE_WIDE
       if constexpr (kHasWideRows<T>) {
-        n = wide_ ? ScanMatrixWide(c, s.done.data(), hits) : ScanMatrix(c, s.done.data(), hits);
-      } else {
-        n = ScanMatrix(c, s.done.data(), hits);
+        if (kernel_ == DenseKernel::kAvx512) n = ScanMatrixWide(c, done, hits);
       }
-#else
-      n = ScanMatrix(c, s.done.data(), hits);
+      if constexpr (kHasAvx2Rows<T>) {
+        if (kernel_ == DenseKernel::kAvx2) n = ScanMatrixAvx2(c, done, hits);
+      }
 #endif
+      if (kernel_ == DenseKernel::kPortable) n = ScanMatrix(c, done, hits);
       for (uint32_t k = 0; k < n; ++k) {
         const Hit& hit = hits[k];
         for (uint32_t diff = hit.diff; diff != 0; diff &= diff - 1) {
@@ -441,7 +578,7 @@ class DenseCellCore {
           FlipPair(c, j);
         }
       }
-      s.done[c / kBlock] |= 1u << (c % kBlock);
+      done[c / kBlock] |= 1u << (c % kBlock);
     }
   }
 
@@ -488,8 +625,8 @@ class DenseCellCore {
       FindChangesMatrix(s);
       return;
     }
-    const std::vector<uint32_t>& order = s.order;
-    const std::vector<Before>& before = s.before;
+    const std::span<const uint32_t> order(s.order.data(), s.count);
+    const std::span<const Before> before(s.before.data(), s.count);
     if (order.size() <= kFewChanges) {
       for (uint32_t r = 0; r < order.size(); ++r) {
         const uint32_t c = order[r];
@@ -550,8 +687,14 @@ class DenseCellCore {
                   const uint32_t* steady, Report&& report) {
 #ifdef BP_DENSE_WIDE
     if constexpr (kHasWideRows<T>) {
-      if (wide_) {
+      if (kernel_ == DenseKernel::kAvx512) {
         ScanBlocksWide(then_rows, then_live, c, old, steady, report);
+        return;
+      }
+    }
+    if constexpr (kHasAvx2Rows<T>) {
+      if (kernel_ == DenseKernel::kAvx2) {
+        ScanBlocksAvx2(then_rows, then_live, c, old, steady, report);
         return;
       }
     }
@@ -662,10 +805,71 @@ class DenseCellCore {
     }
     return n;
   }
+
+  // ScanBlocksWide under AVX2: each block's tests, then and now, as 16-bit masks (Avx2Rows).
+  template <class Report>
+  BP_AVX2_TARGET void ScanBlocksAvx2(const T* then_rows, const uint32_t* then_live, uint32_t c,
+                                     const Before& old, const uint32_t* steady, Report& report) {
+    T nlo[kAxes], nhi[kAxes];
+    for (size_t a = 0; a < kAxes; ++a) {
+      nlo[a] = rows_[At(c, 2 * a)];
+      nhi[a] = rows_[At(c, 2 * a + 1)];
+    }
+    const uint32_t c_block = c / kBlock, blocks = size_ / kBlock;
+    const bool was_live = old.live != 0, is_live = is_[c] != 0;
+    for (uint32_t b = 0; b < blocks; ++b) {
+      if (steady != nullptr && b < c_block && steady[b] == 0) continue;
+      tests_ += 2 * kBlock;
+      uint32_t then_bits = was_live ? Avx2Live(then_live + size_t{b} * kBlock) : 0;
+      uint32_t now_bits = is_live ? Avx2Live(is_.data() + size_t{b} * kBlock) : 0;
+      if (then_bits != 0) {
+        then_bits &= Avx2Rows<T>::template Block<kAxes>(then_rows + size_t{b} * kBlockValues,
+                                                        old.box.lo.data(), old.box.hi.data());
+      }
+      if (now_bits != 0) {
+        now_bits &=
+            Avx2Rows<T>::template Block<kAxes>(rows_.data() + size_t{b} * kBlockValues, nlo, nhi);
+      }
+      uint32_t diff = then_bits ^ now_bits;
+      if (b == c_block) diff &= ~(1u << (c % kBlock));
+      while (diff != 0) {
+        const auto i = static_cast<uint32_t>(std::countr_zero(diff));
+        diff &= diff - 1;
+        report(b * kBlock + i, ((now_bits >> i) & 1u) != 0);
+      }
+    }
+  }
+
+  // ScanMatrixWide under AVX2: a block whose live and paired slots are all done is skipped.
+  BP_AVX2_TARGET uint32_t ScanMatrixAvx2(uint32_t c, const uint32_t* done, Hit* hits) {
+    T nlo[kAxes], nhi[kAxes];
+    for (size_t a = 0; a < kAxes; ++a) {
+      nlo[a] = rows_[At(c, 2 * a)];
+      nhi[a] = rows_[At(c, 2 * a + 1)];
+    }
+    const uint32_t blocks = size_ / kBlock, c_block = c / kBlock;
+    const bool live = is_[c] != 0;
+    const uint16_t* then = PairRow(c);
+    uint32_t n = 0;
+    for (uint32_t b = 0; b < blocks; ++b) {
+      uint32_t now = live ? Avx2Live(is_.data() + size_t{b} * kBlock) : 0;
+      const uint32_t was = then[b];
+      if (((now | was) & ~done[b]) == 0) continue;
+      tests_ += kBlock;
+      if (now != 0) {
+        now &=
+            Avx2Rows<T>::template Block<kAxes>(rows_.data() + size_t{b} * kBlockValues, nlo, nhi);
+      }
+      uint32_t diff = (now ^ was) & ~done[b];
+      if (b == c_block) diff &= ~(1u << (c % kBlock));
+      if (diff != 0) hits[n++] = Hit{b, diff, now};
+    }
+    return n;
+  }
 #endif
 
   Options options_;
-  bool wide_;                 // ScanBlocks takes the AVX-512 kernel
+  DenseKernel kernel_;        // the box-test kernel that runs (never kAuto)
   bool matrix_ = false;       // the cell's pairs are kept in pairs_
   std::vector<T> rows_;       // per block: lo[0], hi[0], lo[1], ... (kBlock values each)
   std::vector<uint32_t> is_;  // live now (0 or 1)
