@@ -64,7 +64,7 @@ enum class DenseKernel : uint8_t {
   kAuto,      ///< the widest this CPU runs for the coordinate type
   kAvx512,    ///< AVX-512F (x86-64; float, double and int32 coordinates)
   kAvx2,      ///< AVX2 (x86-64; float, double and int32 coordinates)
-  kPortable,  ///< plain C++ (whatever the compiler makes of it for the build's target)
+  kPortable,  ///< portable C++ (GCC/Clang vector extensions for float, double and int32)
 };
 
 /// The name of a kernel: "auto", "avx512", "avx2" or "portable".
