@@ -857,7 +857,10 @@ class DenseCellCore {
     return n;
   }
 
-  // ScanBlocksWide under AVX2: each block's tests, then and now, as 16-bit masks (Avx2Rows).
+  // ScanBlocks under AVX2: each block's tests, then and now, as 16-bit masks (Avx2Rows). The
+  // same loop as the portable ScanBlocks with Avx2Live and Avx2Rows for PortableLive and
+  // PortableBlock, written out again rather than shared as a template over the kernel: the
+  // intrinsics inline only into a function compiled for AVX2, and the portable loop must not be.
   template <class Report>
   BP_AVX2_TARGET void ScanBlocksAvx2(const T* then_rows, const uint32_t* then_live, uint32_t c,
                                      const Before& old, const uint32_t* steady,
@@ -892,7 +895,8 @@ class DenseCellCore {
     }
   }
 
-  // ScanMatrixWide under AVX2: a block whose live and paired slots are all done is skipped.
+  // ScanMatrix under AVX2 (a copy of its loop, for the reason given at ScanBlocksAvx2): a block
+  // whose live and paired slots are all done is skipped.
   BP_AVX2_TARGET uint32_t ScanMatrixAvx2(uint32_t c, const uint32_t* done,
                                          Hit* hits) requires kHasAvx2Rows<T> {
     T nlo[kAxes], nhi[kAxes];
