@@ -10,6 +10,7 @@
 #include <array>
 #include <cmath>
 #include <cstddef>
+#include <limits>
 #include <string>
 #include <type_traits>
 
@@ -40,9 +41,26 @@ inline bool Overlaps(const Box<K, T>& a, const Box<K, T>& b) {
   return true;
 }
 
-/// Ok if the box is valid; otherwise InvalidArgument naming the axis and the reason.
+/// True iff the box is valid: on every axis lo <= hi and, for floating T, both finite. Without
+/// branches: lo >= lowest fails for NaN and -inf, hi <= max for NaN and +inf, and lo <= hi
+/// covers lo = +inf and hi = -inf (the other bound would have to be infinite too).
 template <int K, Coordinate T>
-Status ValidateBox(const Box<K, T>& box) {
+inline bool IsValidBox(const Box<K, T>& box) {
+  bool ok = true;
+  for (std::size_t i = 0; i < static_cast<std::size_t>(K); ++i) {
+    if constexpr (std::is_floating_point_v<T>) {
+      ok &= (box.lo[i] >= std::numeric_limits<T>::lowest()) &
+            (box.hi[i] <= std::numeric_limits<T>::max());
+    }
+    ok &= box.lo[i] <= box.hi[i];
+  }
+  return ok;
+}
+
+namespace detail {
+/// ValidateBox's error for a box IsValidBox refuses: the first bad axis and why.
+template <int K, Coordinate T>
+[[gnu::noinline, gnu::cold]] Status InvalidBoxStatus(const Box<K, T>& box) {
   for (std::size_t i = 0; i < static_cast<std::size_t>(K); ++i) {
     if constexpr (std::is_floating_point_v<T>) {
       if (std::isnan(box.lo[i]) || std::isnan(box.hi[i])) {
@@ -58,6 +76,16 @@ Status ValidateBox(const Box<K, T>& box) {
     }
   }
   return Status::Ok();
+}
+}  // namespace detail
+
+/// Ok if the box is valid; otherwise InvalidArgument naming the axis and the reason. The check
+/// is IsValidBox, inline; the message is built out of line, only for a bad box.
+template <int K, Coordinate T>
+inline Status ValidateBox(const Box<K, T>& box) {
+  if (IsValidBox(box)) [[likely]]
+    return Status::Ok();
+  return detail::InvalidBoxStatus(box);
 }
 
 }  // namespace bp

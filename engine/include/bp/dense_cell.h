@@ -28,8 +28,9 @@
 //
 // Thread safety: none; owned by one grid cell (the grid's pool applies each cell on one thread).
 // Invariants (checked by Validate, between queries):
-//  1. size_ is a multiple of kBlock; rows_ holds 2 K size_ coordinates and is_ size_ flags (0/1).
-//  2. live_ is the number of slots with is_[h] set; every live slot's box is valid (lo <= hi);
+//  1. size_ is a multiple of kBlock; rows_ holds 2 K size_ coordinates and live_bits_ one 16-bit
+//     word per block (bit h % kBlock of word h / kBlock: slot h is live).
+//  2. live_ is the number of live slots; every live slot's box is valid (lo <= hi);
 //     no change is pending.
 //  3. With matrix_, pairs_ holds size_ rows of size_ / kBlock words and bit (a, b) is set iff
 //     a != b, both are live, their boxes overlap and the filter accepts them; else it is empty.
@@ -148,11 +149,6 @@ struct WideRows<int32_t> {
                                       _MM_CMPINT_LE);
   }
 };
-/// The live flags (0/1) of a block of 16 slots as bits.
-BP_WIDE_TARGET inline uint32_t WideLive(const uint32_t* flags) {
-  const __m512i v = _mm512_loadu_si512(flags);
-  return _mm512_test_epi32_mask(v, v);
-}
 template <class T>
 inline constexpr bool kHasWideRows = requires {
   WideRows<T>::Overlap;
@@ -236,14 +232,6 @@ struct Avx2Rows<int32_t> {
     return ~fail & 0xFFFFu;
   }
 };
-/// The live flags (0/1) of a block of 16 slots as bits, under AVX2 (flag bit 0 to the sign).
-BP_AVX2_TARGET inline uint32_t Avx2Live(const uint32_t* flags) {
-  const auto* v = reinterpret_cast<const __m256i*>(flags);
-  const __m256 lo = _mm256_castsi256_ps(_mm256_slli_epi32(_mm256_loadu_si256(v), 31));
-  const __m256 hi = _mm256_castsi256_ps(_mm256_slli_epi32(_mm256_loadu_si256(v + 1), 31));
-  return static_cast<uint32_t>(_mm256_movemask_ps(lo)) |
-         static_cast<uint32_t>(_mm256_movemask_ps(hi)) << 8;
-}
 template <class T>
 inline constexpr bool kHasAvx2Rows =
     std::is_same_v<T, float> || std::is_same_v<T, double> || std::is_same_v<T, int32_t>;
@@ -315,12 +303,6 @@ inline uint32_t PortableBlock(const T* block, const T* lo, const T* hi) {
     return out;
   }
 }
-/// The live flags (0/1) of a block of 16 slots as bits (portable).
-inline uint32_t PortableLive(const uint32_t* flags) {
-  uint32_t out = 0;
-  for (uint32_t i = 0; i < 16; ++i) out |= (flags[i] & 1u) << i;
-  return out;
-}
 
 /// The kernel a dense cell over coordinates T runs when `requested` is asked for on this CPU
 /// (never kAuto): the requested one, or the next narrower one this CPU and T have.
@@ -366,19 +348,19 @@ class DenseCellCore {
     if (top > size_) Resize(top);
     if (!matrix_ && s.before.size() < ops) s.before.resize(ops);
     for (uint32_t h : erases) {
-      BP_ASSERT(h < size_ && is_[h] != 0);
+      BP_ASSERT(h < size_ && Live(h));
       Mark(s, h, true);
-      is_[h] = 0;  // the box stays: it is the old one
+      ClearLive(h);  // the box stays: it is the old one
     }
     for (const auto& [h, box] : updates) {
-      BP_ASSERT(h < size_ && is_[h] != 0);
+      BP_ASSERT(h < size_ && Live(h));
       Mark(s, h, true);
       Store(h, box);
     }
     for (const auto& [h, box] : inserts) {
-      BP_ASSERT(h < size_ && is_[h] == 0);
+      BP_ASSERT(h < size_ && !Live(h));
       Mark(s, h, false);
-      is_[h] = 1;
+      SetLive(h);
       Store(h, box);
     }
     live_ = live_ + inserts.size() - erases.size();
@@ -401,9 +383,9 @@ class DenseCellCore {
   template <class F>
   void ForEachOverlap(F&& f) const {
     for (uint32_t a = 0; a < size_; ++a) {
-      if (is_[a] == 0) continue;
+      if (!Live(a)) continue;
       for (uint32_t b = a + 1; b < size_; ++b) {
-        if (is_[b] != 0 && Accepts(a, b) && Overlaps(BoxAt(a), BoxAt(b))) f(a, b);
+        if (Live(b) && Accepts(a, b) && Overlaps(BoxAt(a), BoxAt(b))) f(a, b);
       }
     }
   }
@@ -412,7 +394,7 @@ class DenseCellCore {
   /// Slots held, live or free (a multiple of 16); the grid's local handles are below it.
   uint32_t slots() const { return size_; }
   /// True iff slot h holds a live object.
-  bool holds(uint32_t h) const { return h < size_ && is_[h] != 0; }
+  bool holds(uint32_t h) const { return h < size_ && Live(h); }
   /// The box-test kernel this cell runs (DenseCellOptions::kernel, resolved for this CPU).
   DenseKernel kernel() const { return kernel_; }
   /// True iff the cell keeps its pairs as a bit matrix (see DenseCellOptions::matrix_slots).
@@ -431,12 +413,12 @@ class DenseCellCore {
     if (target >= size_) return;
     uint32_t to = 0;
     for (uint32_t from = target; from < size_; ++from) {
-      if (is_[from] == 0) continue;
-      while (is_[to] != 0) ++to;  // there is one below target: live_ <= target - slack
+      if (!Live(from)) continue;
+      while (Live(to)) ++to;  // there is one below target: live_ <= target - slack
       BP_ASSERT(to < target);
       Store(to, BoxAt(from));
-      is_[to] = 1;
-      is_[from] = 0;
+      SetLive(to);
+      ClearLive(from);
       if (matrix_) MoveMatrixSlot(from, to);
       if (options_of_.filtering()) {
         const ObjectOptions o = options_of_.Get(from);
@@ -447,15 +429,15 @@ class DenseCellCore {
     Resize(target);
   }
 
-  /// Starts loading the rows, live flags and change buffer a query reads (the grid calls it two
+  /// Starts loading the rows, live bits and change buffer a query reads (the grid calls it two
   /// cells ahead). Not the matrix: a query reads its changed slots' rows of it only, and loading
   /// all of it measured no better on S1-200k (0.98 against 0.95 of the build before).
   void Prefetch() const {
     const char* p = reinterpret_cast<const char*>(rows_.data());
     const size_t bytes = rows_.size() * sizeof(T);
     for (size_t off = 0; off < bytes; off += 64) __builtin_prefetch(p + off);
-    const char* f = reinterpret_cast<const char*>(is_.data());
-    for (size_t off = 0; off < is_.size() * sizeof(uint32_t); off += 64)
+    const char* f = reinterpret_cast<const char*>(live_bits_.data());
+    for (size_t off = 0; off < live_bits_.size() * sizeof(uint16_t); off += 64)
       __builtin_prefetch(f + off);
     if (changes_.capacity() != 0) __builtin_prefetch(changes_.data());
   }
@@ -507,7 +489,8 @@ class DenseCellCore {
   // needed only inside Apply, and a per-cell list is one more line to miss per touched cell.
   struct Scratch {
     std::vector<T> then_rows;
-    std::vector<uint32_t> then_live, changed, steady;
+    std::vector<uint16_t> then_live;  // live bits then, per block
+    std::vector<uint32_t> changed, steady;
     std::vector<uint32_t> order;  // the query's changed slots, in order: order[0, count)
     std::vector<Before> before;   // their states at the last query (rows mode): [0, count)
     size_t count = 0;
@@ -519,6 +502,11 @@ class DenseCellCore {
 
   static size_t At(uint32_t h, size_t row) {
     return size_t{h / kBlock} * kBlockValues + row * kBlock + h % kBlock;
+  }
+  bool Live(uint32_t h) const { return ((live_bits_[h / kBlock] >> (h % kBlock)) & 1u) != 0; }
+  void SetLive(uint32_t h) { live_bits_[h / kBlock] |= static_cast<uint16_t>(1u << (h % kBlock)); }
+  void ClearLive(uint32_t h) {
+    live_bits_[h / kBlock] &= static_cast<uint16_t>(~(1u << (h % kBlock)));
   }
   Box<K, T> BoxAt(uint32_t h) const {
     Box<K, T> b;
@@ -546,7 +534,7 @@ class DenseCellCore {
   }
   void Resize(size_t n) {
     rows_.resize(n * kRows);
-    is_.resize(n, 0);
+    live_bits_.resize(n / kBlock, 0);
     if (matrix_) {
       // Rows and columns of the slots beyond a smaller n are all clear (those slots are dead).
       const size_t from = size_ / kBlock, to = n / kBlock;
@@ -589,10 +577,10 @@ class DenseCellCore {
       matrix_ = true;
       pairs_.assign(size_t{size_} * (size_ / kBlock), 0);
       for (uint32_t a = 0; a < size_; ++a) {
-        if (is_[a] == 0) continue;
+        if (!Live(a)) continue;
         const Box<K, T> box = BoxAt(a);
         for (uint32_t b = a + 1; b < size_; ++b) {
-          if (is_[b] != 0 && OverlapsFlat(box, BoxAt(b)) != 0 && Accepts(a, b)) FlipPair(a, b);
+          if (Live(b) && OverlapsFlat(box, BoxAt(b)) != 0 && Accepts(a, b)) FlipPair(a, b);
         }
       }
     }
@@ -625,6 +613,8 @@ class DenseCellCore {
     std::fill_n(done, blocks, 0u);
     Hit hits[kMaxMatrixBlocks];
     for (const uint32_t c : std::span(s.order.data(), s.count)) {
+      // c is done from its own scan on: its bit keeps it from pairing with itself.
+      done[c / kBlock] |= 1u << (c % kBlock);
       uint32_t n = 0;
 #ifdef BP_DENSE_WIDE
       if (kHasWideRows<T> && kernel_ == DenseKernel::kAvx512) {
@@ -647,12 +637,12 @@ class DenseCellCore {
           FlipPair(c, j);
         }
       }
-      done[c / kBlock] |= 1u << (c % kBlock);
     }
   }
 
   // Writes to hits the blocks where changed slot c's tests now differ from its row of the matrix
-  // (slots done excluded); returns their number. The portable kernel (PortableBlock).
+  // (the slots done, c among them, excluded); returns their number. The portable kernel
+  // (PortableBlock).
   uint32_t ScanMatrix(uint32_t c, const uint32_t* done, Hit* hits) {
     T nlo[kAxes], nhi[kAxes];
     for (size_t a = 0; a < kAxes; ++a) {
@@ -660,21 +650,21 @@ class DenseCellCore {
       nhi[a] = rows_[At(c, 2 * a + 1)];
     }
     const uint32_t blocks = size_ / kBlock;
-    const bool live = is_[c] != 0;
+    const uint32_t live = Live(c) ? 0xFFFFu : 0u;
     const uint16_t* then = PairRow(c);
-    uint32_t n = 0;
-    for (uint32_t b = 0; b < blocks; ++b) {
-      uint32_t now = live ? PortableLive(is_.data() + size_t{b} * kBlock) : 0;
-      const uint32_t was = then[b];
-      if (((now | was) & ~done[b]) == 0) continue;
-      tests_ += kBlock;
-      if (now != 0) {
-        now &= PortableBlock<T, kAxes>(rows_.data() + size_t{b} * kBlockValues, nlo, nhi);
-      }
-      uint32_t diff = (now ^ was) & ~done[b];
-      if (b == c / kBlock) diff &= ~(1u << (c % kBlock));
+    const uint16_t* live_bits = live_bits_.data();
+    const T* block = rows_.data();
+    uint32_t n = 0, tested = 0;
+    for (uint32_t b = 0; b < blocks; ++b, block += kBlockValues) {
+      uint32_t now = live_bits[b] & live;
+      const uint32_t was = then[b], open = ~done[b];
+      if (((now | was) & open) == 0) continue;
+      ++tested;
+      if (now != 0) now &= PortableBlock<T, kAxes>(block, nlo, nhi);
+      const uint32_t diff = (now ^ was) & open;
       if (diff != 0) hits[n++] = Hit{b, diff, now};
     }
+    tests_ += size_t{tested} * kBlock;
     return n;
   }
 
@@ -692,36 +682,41 @@ class DenseCellCore {
     if (order.size() <= kFewChanges) {
       for (uint32_t r = 0; r < order.size(); ++r) {
         const uint32_t c = order[r];
-        ScanBlocks(rows_.data(), is_.data(), c, before[r], nullptr, [&](uint32_t j, bool now) {
-          if (std::find(order.begin(), order.end(), j) != order.end()) return;
-          if (Accepts(c, j)) changes_.push_back(Change{c, j, now});
-        });
+        ScanBlocks(rows_.data(), live_bits_.data(), c, before[r], nullptr,
+                   [&](uint32_t j, bool now) {
+                     if (std::find(order.begin(), order.end(), j) != order.end()) return;
+                     if (Accepts(c, j)) changes_.push_back(Change{c, j, now});
+                   });
         // The pairs among the changed slots, tested without branches (perf on S1-200k: the
         // short-circuit branches of this loop held most of this function's samples).
         const Box<K, T> c_now = BoxAt(c);
-        const uint32_t c_live = is_[c];
+        const uint32_t c_live = Live(c) ? 1u : 0u;
         for (uint32_t q = r + 1; q < order.size(); ++q) {
           const uint32_t j = order[q];
           BP_ASSERT(j != c);  // one operation per slot and query
           const bool then =
               (before[r].live & before[q].live & OverlapsFlat(before[r].box, before[q].box)) != 0;
-          const bool now = (c_live & is_[j] & OverlapsFlat(c_now, BoxAt(j))) != 0;
+          const bool now = (c_live & (Live(j) ? 1u : 0u) & OverlapsFlat(c_now, BoxAt(j))) != 0;
           if (then != now && Accepts(c, j)) changes_.push_back(Change{c, j, now});
         }
       }
       return;
     }
     s.then_rows.assign(rows_.begin(), rows_.end());
-    s.then_live.assign(is_.begin(), is_.end());
+    s.then_live.assign(live_bits_.begin(), live_bits_.end());
     s.changed.assign(size_, 0);
-    s.steady.assign(size_ / kBlock, 0);
-    for (uint32_t h = 0; h < size_; ++h) s.steady[h / kBlock] += is_[h];
+    s.steady.resize(size_ / kBlock);
+    for (uint32_t b = 0; b < size_ / kBlock; ++b) {
+      s.steady[b] = static_cast<uint32_t>(std::popcount(live_bits_[b]));
+    }
     for (uint32_t r = 0; r < order.size(); ++r) {
       const uint32_t h = order[r];
       BP_ASSERT(s.changed[h] == 0);  // one operation per slot and query
       s.changed[h] = 1;
-      s.steady[h / kBlock] -= is_[h];
-      s.then_live[h] = before[r].live;
+      s.steady[h / kBlock] -= Live(h) ? 1u : 0u;
+      const auto bit = static_cast<uint16_t>(1u << (h % kBlock));
+      s.then_live[h / kBlock] = static_cast<uint16_t>(
+          before[r].live != 0 ? s.then_live[h / kBlock] | bit : s.then_live[h / kBlock] & ~bit);
       if (before[r].live == 0) continue;
       for (size_t a = 0; a < kAxes; ++a) {
         s.then_rows[At(h, 2 * a)] = before[r].box.lo[a];
@@ -745,7 +740,7 @@ class DenseCellCore {
   // pairs with c are decided by its own changed slots (when every object moves, that halves the
   // tests).
   template <class Report>
-  void ScanBlocks(const T* then_rows, const uint32_t* then_live, uint32_t c, const Before& old,
+  void ScanBlocks(const T* then_rows, const uint16_t* then_live, uint32_t c, const Before& old,
                   const uint32_t* steady, Report&& report) {
 #ifdef BP_DENSE_WIDE
     if constexpr (kHasWideRows<T>) {
@@ -767,12 +762,12 @@ class DenseCellCore {
       nhi[a] = rows_[At(c, 2 * a + 1)];
     }
     const uint32_t c_block = c / kBlock, blocks = size_ / kBlock;
-    const bool was_live = old.live != 0, is_live = is_[c] != 0;
+    const bool was_live = old.live != 0, is_live = Live(c);
     for (uint32_t b = 0; b < blocks; ++b) {
       if (steady != nullptr && b < c_block && steady[b] == 0) continue;
       tests_ += 2 * kBlock;
-      uint32_t then_bits = was_live ? PortableLive(then_live + size_t{b} * kBlock) : 0;
-      uint32_t now_bits = is_live ? PortableLive(is_.data() + size_t{b} * kBlock) : 0;
+      uint32_t then_bits = was_live ? uint32_t{then_live[b]} : 0;
+      uint32_t now_bits = is_live ? uint32_t{live_bits_[b]} : 0;
       if (then_bits != 0) {
         then_bits &= PortableBlock<T, kAxes>(then_rows + size_t{b} * kBlockValues,
                                              old.box.lo.data(), old.box.hi.data());
@@ -795,7 +790,7 @@ class DenseCellCore {
   // tests as bit masks, and only the differing bits visited. A loop of its own, not a kernel
   // plugged into ScanBlocks: the intrinsics inline only into a function compiled for AVX-512.
   template <class Report>
-  BP_WIDE_TARGET void ScanBlocksWide(const T* then_rows, const uint32_t* then_live, uint32_t c,
+  BP_WIDE_TARGET void ScanBlocksWide(const T* then_rows, const uint16_t* then_live, uint32_t c,
                                      const Before& old, const uint32_t* steady,
                                      Report& report) requires kHasWideRows<T> {
     T nlo[kAxes], nhi[kAxes];
@@ -804,14 +799,14 @@ class DenseCellCore {
       nhi[a] = rows_[At(c, 2 * a + 1)];
     }
     const uint32_t c_block = c / kBlock, blocks = size_ / kBlock;
-    const bool was_live = old.live != 0, is_live = is_[c] != 0;
+    const bool was_live = old.live != 0, is_live = Live(c);
     for (uint32_t b = 0; b < blocks; ++b) {
       if (steady != nullptr && b < c_block && steady[b] == 0) continue;
       tests_ += 2 * kBlock;
       const T* then_block = then_rows + size_t{b} * kBlockValues;
       const T* now_block = rows_.data() + size_t{b} * kBlockValues;
-      uint32_t then_bits = was_live ? WideLive(then_live + size_t{b} * kBlock) : 0;
-      uint32_t now_bits = is_live ? WideLive(is_.data() + size_t{b} * kBlock) : 0;
+      uint32_t then_bits = was_live ? uint32_t{then_live[b]} : 0;
+      uint32_t now_bits = is_live ? uint32_t{live_bits_[b]} : 0;
       for (size_t a = 0; a < kAxes; ++a) {
         const size_t lo = 2 * a * kBlock, hi = lo + kBlock;
         then_bits = WideRows<T>::Overlap(then_bits, then_block + lo, then_block + hi, old.box.lo[a],
@@ -836,33 +831,34 @@ class DenseCellCore {
       nlo[a] = rows_[At(c, 2 * a)];
       nhi[a] = rows_[At(c, 2 * a + 1)];
     }
-    const uint32_t blocks = size_ / kBlock, c_block = c / kBlock;
-    const bool live = is_[c] != 0;
+    const uint32_t blocks = size_ / kBlock;
+    const uint32_t live = Live(c) ? 0xFFFFu : 0u;
     const uint16_t* then = PairRow(c);
-    uint32_t n = 0;
-    for (uint32_t b = 0; b < blocks; ++b) {
-      uint32_t now = live ? WideLive(is_.data() + size_t{b} * kBlock) : 0;
-      const uint32_t was = then[b];
-      if (((now | was) & ~done[b]) == 0) continue;
-      tests_ += kBlock;
-      const T* block = rows_.data() + size_t{b} * kBlockValues;
+    const uint16_t* live_bits = live_bits_.data();
+    const T* block = rows_.data();
+    uint32_t n = 0, tested = 0;
+    for (uint32_t b = 0; b < blocks; ++b, block += kBlockValues) {
+      uint32_t now = live_bits[b] & live;
+      const uint32_t was = then[b], open = ~done[b];
+      if (((now | was) & open) == 0) continue;
+      ++tested;
       for (size_t a = 0; a < kAxes; ++a) {
         const size_t lo = 2 * a * kBlock, hi = lo + kBlock;
         now = WideRows<T>::Overlap(now, block + lo, block + hi, nlo[a], nhi[a]);
       }
-      uint32_t diff = (now ^ was) & ~done[b];
-      if (b == c_block) diff &= ~(1u << (c % kBlock));
+      const uint32_t diff = (now ^ was) & open;
       if (diff != 0) hits[n++] = Hit{b, diff, now};
     }
+    tests_ += size_t{tested} * kBlock;
     return n;
   }
 
   // ScanBlocks under AVX2: each block's tests, then and now, as 16-bit masks (Avx2Rows). The
-  // same loop as the portable ScanBlocks with Avx2Live and Avx2Rows for PortableLive and
-  // PortableBlock, written out again rather than shared as a template over the kernel: the
-  // intrinsics inline only into a function compiled for AVX2, and the portable loop must not be.
+  // same loop as the portable ScanBlocks with Avx2Rows for PortableBlock, written out again rather
+  // than shared as a template over the kernel: the intrinsics inline only into a function compiled
+  // for AVX2, and the portable loop must not be.
   template <class Report>
-  BP_AVX2_TARGET void ScanBlocksAvx2(const T* then_rows, const uint32_t* then_live, uint32_t c,
+  BP_AVX2_TARGET void ScanBlocksAvx2(const T* then_rows, const uint16_t* then_live, uint32_t c,
                                      const Before& old, const uint32_t* steady,
                                      Report& report) requires kHasAvx2Rows<T> {
     T nlo[kAxes], nhi[kAxes];
@@ -871,12 +867,12 @@ class DenseCellCore {
       nhi[a] = rows_[At(c, 2 * a + 1)];
     }
     const uint32_t c_block = c / kBlock, blocks = size_ / kBlock;
-    const bool was_live = old.live != 0, is_live = is_[c] != 0;
+    const bool was_live = old.live != 0, is_live = Live(c);
     for (uint32_t b = 0; b < blocks; ++b) {
       if (steady != nullptr && b < c_block && steady[b] == 0) continue;
       tests_ += 2 * kBlock;
-      uint32_t then_bits = was_live ? Avx2Live(then_live + size_t{b} * kBlock) : 0;
-      uint32_t now_bits = is_live ? Avx2Live(is_.data() + size_t{b} * kBlock) : 0;
+      uint32_t then_bits = was_live ? uint32_t{then_live[b]} : 0;
+      uint32_t now_bits = is_live ? uint32_t{live_bits_[b]} : 0;
       if (then_bits != 0) {
         then_bits &= Avx2Rows<T>::template Block<kAxes>(then_rows + size_t{b} * kBlockValues,
                                                         old.box.lo.data(), old.box.hi.data());
@@ -904,33 +900,32 @@ class DenseCellCore {
       nlo[a] = rows_[At(c, 2 * a)];
       nhi[a] = rows_[At(c, 2 * a + 1)];
     }
-    const uint32_t blocks = size_ / kBlock, c_block = c / kBlock;
-    const bool live = is_[c] != 0;
+    const uint32_t blocks = size_ / kBlock;
+    const uint32_t live = Live(c) ? 0xFFFFu : 0u;
     const uint16_t* then = PairRow(c);
-    uint32_t n = 0;
-    for (uint32_t b = 0; b < blocks; ++b) {
-      uint32_t now = live ? Avx2Live(is_.data() + size_t{b} * kBlock) : 0;
-      const uint32_t was = then[b];
-      if (((now | was) & ~done[b]) == 0) continue;
-      tests_ += kBlock;
-      if (now != 0) {
-        now &=
-            Avx2Rows<T>::template Block<kAxes>(rows_.data() + size_t{b} * kBlockValues, nlo, nhi);
-      }
-      uint32_t diff = (now ^ was) & ~done[b];
-      if (b == c_block) diff &= ~(1u << (c % kBlock));
+    const uint16_t* live_bits = live_bits_.data();
+    const T* block = rows_.data();
+    uint32_t n = 0, tested = 0;
+    for (uint32_t b = 0; b < blocks; ++b, block += kBlockValues) {
+      uint32_t now = live_bits[b] & live;
+      const uint32_t was = then[b], open = ~done[b];
+      if (((now | was) & open) == 0) continue;
+      ++tested;
+      if (now != 0) now &= Avx2Rows<T>::template Block<kAxes>(block, nlo, nhi);
+      const uint32_t diff = (now ^ was) & open;
       if (diff != 0) hits[n++] = Hit{b, diff, now};
     }
+    tests_ += size_t{tested} * kBlock;
     return n;
   }
 #endif
 
   Options options_;
-  DenseKernel kernel_;        // the box-test kernel that runs (never kAuto)
-  bool matrix_ = false;       // the cell's pairs are kept in pairs_
-  std::vector<T> rows_;       // per block: lo[0], hi[0], lo[1], ... (kBlock values each)
-  std::vector<uint32_t> is_;  // live now (0 or 1)
-  uint32_t size_ = 0;         // slots (the grid's local handles), a multiple of kBlock
+  DenseKernel kernel_;               // the box-test kernel that runs (never kAuto)
+  bool matrix_ = false;              // the cell's pairs are kept in pairs_
+  std::vector<T> rows_;              // per block: lo[0], hi[0], lo[1], ... (kBlock values each)
+  std::vector<uint16_t> live_bits_;  // per block: bit i set iff slot b * kBlock + i is live
+  uint32_t size_ = 0;                // slots (the grid's local handles), a multiple of kBlock
   size_t live_ = 0;
   OptionsTable options_of_;      // by slot
   std::vector<uint16_t> pairs_;  // with matrix_: size_ rows of size_ / kBlock words (see PairRow)
@@ -944,14 +939,14 @@ Status DenseCellCore<K, T>::Validate() const {
     return Status(StatusCode::kInternal, "dense cell: " + what);
   };
   if (!changes_.empty()) return fail("changes left after a query");
-  if (size_ % kBlock != 0 || rows_.size() != size_t{size_} * kRows || is_.size() != size_) {
+  if (size_ % kBlock != 0 || rows_.size() != size_t{size_} * kRows ||
+      live_bits_.size() != size_ / kBlock) {
     return fail("arrays of the wrong size");
   }
   size_t live = 0;
   for (uint32_t h = 0; h < size_; ++h) {
-    if (is_[h] > 1) return fail("slot " + std::to_string(h) + ": bad flag");
-    live += is_[h];
-    if (is_[h] == 0) continue;
+    if (!Live(h)) continue;
+    ++live;
     Box<K, T> b = BoxAt(h);
     for (size_t a = 0; a < kAxes; ++a) {
       if (b.hi[a] < b.lo[a]) return fail("slot " + std::to_string(h) + ": bad box");
@@ -963,8 +958,8 @@ Status DenseCellCore<K, T>::Validate() const {
   for (uint32_t a = 0; a < size_; ++a) {
     for (uint32_t b = 0; b < size_; ++b) {
       const bool bit = ((unsigned{PairRow(a)[b / kBlock]} >> (b % kBlock)) & 1u) != 0;
-      const bool pair = a != b && is_[a] != 0 && is_[b] != 0 && Accepts(a, b) &&
-                        OverlapsFlat(BoxAt(a), BoxAt(b)) != 0;
+      const bool pair =
+          a != b && Live(a) && Live(b) && Accepts(a, b) && OverlapsFlat(BoxAt(a), BoxAt(b)) != 0;
       if (bit != pair) {
         return fail("matrix bit of slots " + std::to_string(a) + " and " + std::to_string(b) +
                     (bit ? " set for no pair" : " clear for a pair"));
