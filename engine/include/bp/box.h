@@ -46,15 +46,15 @@ inline bool Overlaps(const Box<K, T>& a, const Box<K, T>& b) {
 /// covers lo = +inf and hi = -inf (the other bound would have to be infinite too).
 template <int K, Coordinate T>
 inline bool IsValidBox(const Box<K, T>& box) {
-  bool ok = true;
+  unsigned ok = 1;
   for (std::size_t i = 0; i < static_cast<std::size_t>(K); ++i) {
     if constexpr (std::is_floating_point_v<T>) {
-      ok &= (box.lo[i] >= std::numeric_limits<T>::lowest()) &
-            (box.hi[i] <= std::numeric_limits<T>::max());
+      ok &= static_cast<unsigned>(box.lo[i] >= std::numeric_limits<T>::lowest()) &
+            static_cast<unsigned>(box.hi[i] <= std::numeric_limits<T>::max());
     }
-    ok &= box.lo[i] <= box.hi[i];
+    ok &= static_cast<unsigned>(box.lo[i] <= box.hi[i]);
   }
-  return ok;
+  return ok != 0;
 }
 
 namespace detail {
