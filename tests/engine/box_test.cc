@@ -1,6 +1,6 @@
 // IsValidBox (branch-free, inline) against the rule it implements, and ValidateBox's messages,
-// on the values at the edges of each coordinate type: NaN, both infinities, the largest finite
-// values, signed zeros, subnormals, and the integer limits.
+// on the values at the edges of float, double, long double, int32, int64 and uint32: NaN, both
+// infinities, the largest finite values, signed zeros, subnormals, and the integer limits.
 #include "bp/box.h"
 
 #include <cmath>
@@ -68,6 +68,10 @@ TEST(Box, IsValidBoxFollowsTheRuleAtTheEdgesOfFloat) { CheckEveryPairOnEachAxis<
 TEST(Box, IsValidBoxFollowsTheRuleAtTheEdgesOfDouble) { CheckEveryPairOnEachAxis<double>(); }
 TEST(Box, IsValidBoxFollowsTheRuleAtTheEdgesOfInt32) { CheckEveryPairOnEachAxis<int32_t>(); }
 TEST(Box, IsValidBoxFollowsTheRuleAtTheEdgesOfInt64) { CheckEveryPairOnEachAxis<int64_t>(); }
+TEST(Box, IsValidBoxFollowsTheRuleAtTheEdgesOfUint32) { CheckEveryPairOnEachAxis<uint32_t>(); }
+TEST(Box, IsValidBoxFollowsTheRuleAtTheEdgesOfLongDouble) {
+  CheckEveryPairOnEachAxis<long double>();
+}
 
 TEST(Box, ValidateBoxNamesTheFirstBadAxisAndTheReason) {
   constexpr float kNaN = std::numeric_limits<float>::quiet_NaN();

@@ -166,7 +166,7 @@ inline bool CpuHasAvx2() {
 }
 
 /// A block of 16 slots under AVX2: bit i of Block's result is set iff slot i's box overlaps
-/// [lo, hi] on every axis (closed, the scalar <= exactly; live flags not applied). The rows of
+/// [lo, hi] on every axis (closed, the scalar <= exactly; live bits not applied). The rows of
 /// all axes are tested in registers and turned into bits once (the AVX-512 kernel, with mask
 /// registers, does it per axis). One struct per type, since each compares its own way.
 template <class T>
@@ -246,7 +246,7 @@ inline constexpr bool kHasAvx2Rows = false;
 
 /// The portable block test, in GCC/Clang vector extensions (16-byte vectors, which every target
 /// of these compilers lowers to its own SIMD, or to scalars): bit i of Block's result is set iff
-/// slot i's box overlaps [lo, hi] on every axis (live flags not applied). GCC 12 does not
+/// slot i's box overlaps [lo, hi] on every axis (live bits not applied). GCC 12 does not
 /// vectorise the plain loop (one scalar compare per slot and bound, about 10 cycles per slot
 /// test on a Zen 3); in this form it takes about half as long. For float, double and int32
 /// (the types the differential suite runs); other types take the plain loop.
@@ -503,10 +503,18 @@ class DenseCellCore {
   static size_t At(uint32_t h, size_t row) {
     return size_t{h / kBlock} * kBlockValues + row * kBlock + h % kBlock;
   }
-  bool Live(uint32_t h) const { return ((live_bits_[h / kBlock] >> (h % kBlock)) & 1u) != 0; }
-  void SetLive(uint32_t h) { live_bits_[h / kBlock] |= static_cast<uint16_t>(1u << (h % kBlock)); }
+  // Live bits are read and written in uint32_t arithmetic: a uint16_t operand is promoted to
+  // int, which -Wsign-conversion flags under the sanitizers' instrumentation.
+  bool Live(uint32_t h) const {
+    return ((uint32_t{live_bits_[h / kBlock]} >> (h % kBlock)) & 1u) != 0;
+  }
+  void SetLive(uint32_t h) {
+    uint16_t& word = live_bits_[h / kBlock];
+    word = static_cast<uint16_t>(uint32_t{word} | (1u << (h % kBlock)));
+  }
   void ClearLive(uint32_t h) {
-    live_bits_[h / kBlock] &= static_cast<uint16_t>(~(1u << (h % kBlock)));
+    uint16_t& word = live_bits_[h / kBlock];
+    word = static_cast<uint16_t>(uint32_t{word} & ~(1u << (h % kBlock)));
   }
   Box<K, T> BoxAt(uint32_t h) const {
     Box<K, T> b;
@@ -656,7 +664,7 @@ class DenseCellCore {
     const T* block = rows_.data();
     uint32_t n = 0, tested = 0;
     for (uint32_t b = 0; b < blocks; ++b, block += kBlockValues) {
-      uint32_t now = live_bits[b] & live;
+      uint32_t now = uint32_t{live_bits[b]} & live;
       const uint32_t was = then[b], open = ~done[b];
       if (((now | was) & open) == 0) continue;
       ++tested;
@@ -714,9 +722,9 @@ class DenseCellCore {
       BP_ASSERT(s.changed[h] == 0);  // one operation per slot and query
       s.changed[h] = 1;
       s.steady[h / kBlock] -= Live(h) ? 1u : 0u;
-      const auto bit = static_cast<uint16_t>(1u << (h % kBlock));
-      s.then_live[h / kBlock] = static_cast<uint16_t>(
-          before[r].live != 0 ? s.then_live[h / kBlock] | bit : s.then_live[h / kBlock] & ~bit);
+      const uint32_t bit = 1u << (h % kBlock), word = s.then_live[h / kBlock];
+      s.then_live[h / kBlock] =
+          static_cast<uint16_t>(before[r].live != 0 ? word | bit : word & ~bit);
       if (before[r].live == 0) continue;
       for (size_t a = 0; a < kAxes; ++a) {
         s.then_rows[At(h, 2 * a)] = before[r].box.lo[a];
@@ -838,7 +846,7 @@ class DenseCellCore {
     const T* block = rows_.data();
     uint32_t n = 0, tested = 0;
     for (uint32_t b = 0; b < blocks; ++b, block += kBlockValues) {
-      uint32_t now = live_bits[b] & live;
+      uint32_t now = uint32_t{live_bits[b]} & live;
       const uint32_t was = then[b], open = ~done[b];
       if (((now | was) & open) == 0) continue;
       ++tested;
@@ -907,7 +915,7 @@ class DenseCellCore {
     const T* block = rows_.data();
     uint32_t n = 0, tested = 0;
     for (uint32_t b = 0; b < blocks; ++b, block += kBlockValues) {
-      uint32_t now = live_bits[b] & live;
+      uint32_t now = uint32_t{live_bits[b]} & live;
       const uint32_t was = then[b], open = ~done[b];
       if (((now | was) & open) == 0) continue;
       ++tested;
