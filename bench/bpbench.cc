@@ -54,7 +54,8 @@ struct Config {
   double cell_size = 0;         // grid engines: 0 = automatic
   double objects_per_cell = 0;  // 0: the cell type's default (bp::kDefaultObjectsPerCell)
   uint32_t max_cells = bp::GridSegmentedSapOptions().max_cells_per_object;
-  unsigned threads = 1;         // grid engines
+  unsigned threads = 1;                // grid engines
+  int64_t parallel_routing_from = -1;  // grid engines: < 0 the engine's default
   std::string kernel = "auto";  // grid_dense: "auto" (the widest the CPU has), "avx512", "avx2" or
                                 // "portable" (a kernel the CPU lacks falls back to a narrower one)
   uint32_t big_boxes = 0;       // static boxes of big_width cube widths added to the scene
@@ -150,6 +151,8 @@ GridOptions MakeGridOptions(const Config& cfg, const decltype(GridOptions::cell)
   if (cfg.objects_per_cell > 0) options.objects_per_cell = cfg.objects_per_cell;
   options.max_cells_per_object = cfg.max_cells;
   options.threads = cfg.threads;
+  if (cfg.parallel_routing_from >= 0)
+    options.parallel_routing_from = static_cast<size_t>(cfg.parallel_routing_from);
   options.cell = cell;
   return options;
 }
@@ -366,8 +369,10 @@ void PrintJson(const std::string& scenario, const SceneParams& p, int frames, co
   if (IsGrid(cfg)) {
     o << ",\"cell_size\":" << r.last.cell_size << ",\"auto_size\":" << (cfg.cell_size == 0)
       << ",\"objects_per_cell\":" << ObjectsPerCell(cfg) << ",\"max_cells\":" << cfg.max_cells
-      << ",\"threads\":" << cfg.threads << ",\"cells\":" << r.last.cells
-      << ",\"large_objects\":" << r.last.large_objects;
+      << ",\"threads\":" << cfg.threads << ",\"parallel_routing_from\":"
+      << (cfg.parallel_routing_from >= 0 ? static_cast<size_t>(cfg.parallel_routing_from)
+                                         : bp::GridDenseOptions().parallel_routing_from)
+      << ",\"cells\":" << r.last.cells << ",\"large_objects\":" << r.last.large_objects;
   }
   if (cfg.engine == "grid_dense") {
     o << ",\"kernel\":\"" << bp::DenseKernelName(ResolvedKernel(cfg)) << "\""
@@ -745,6 +750,10 @@ int main(int argc, char** argv) {
   app.add_option("--threads", cfg.threads, "grid engines: threads applying the cells")
       ->check(CLI::Range(1u, 256u))
       ->capture_default_str();
+  app.add_option("--parallel-routing-from", cfg.parallel_routing_from,
+                 "grid engines with --threads above 1: route a query's updates in parallel from "
+                 "this many (0: never; default: the engine's)")
+      ->check(CLI::Range(int64_t{0}, int64_t{1} << 40));
   app.add_option("--max-cells", cfg.max_cells,
                  "grid engines: cells an object may cover before it is kept as a large object")
       ->check(CLI::Range(1u, 1000000u))

@@ -27,8 +27,31 @@ for key in ("per_frame", "without_scene"):
 assert any("GridCore" in name for name in a["functions"]), list(a["functions"])[:5]
 PY
 
+# With the cache simulation: the lines missed per frame, in both caches, by function; a larger
+# last-level cache misses no more lines than a smaller one.
+for ll in 524288 33554432; do
+  "$tool" --binary "$bench" --frames 2,12 --top 5 --cache --ll "$ll" --json "$out/cache$ll.json" \
+    -- -e grid_dense -s S2a >"$out/cache$ll.txt"
+done
+cat "$out/cache524288.txt"
+grep -Eq '^per frame: [0-9,]+ data lines missed in L1 \(32768 B\) and [0-9,]+ in LL \(524288 B\)' \
+  "$out/cache524288.txt"
+python3 - "$out/cache524288.json" "$out/cache33554432.json" <<'PY'
+import json, sys
+small, large = (json.load(open(p)) for p in sys.argv[1:3])
+for run in (small, large):
+    c = run["cache"]
+    assert c["l1_bytes"] == 32768, c
+    assert 0 < c["l1_misses"] and 0 <= c["ll_misses"] <= c["l1_misses"], c
+    assert any("GridCore" in name for name in c["functions"]), list(c["functions"])[:5]
+assert large["cache"]["ll_misses"] <= small["cache"]["ll_misses"], (small["cache"], large["cache"])
+# The simulation changes no instruction count (within the phase clocks' 1%).
+assert abs(small["per_frame"] - large["per_frame"]) <= 1e-2 * small["per_frame"]
+PY
+
 # Bad usage: exit 2, naming the problem.
-for args in "--frames 6,2" "--frames x" "--binary $out/missing" "-- -e grid_dense -f 3"; do
+for args in "--frames 6,2" "--frames x" "--binary $out/missing" "-- -e grid_dense -f 3" \
+  "--cache --ll 1000" "--cache --l1 65536 --ll 32768"; do
   set +e
   # shellcheck disable=SC2086
   "$tool" --binary "$bench" $args >/dev/null 2>"$out/err.txt"
