@@ -36,9 +36,22 @@ done
 cat "$out/cache524288.txt"
 grep -Eq '^per frame: [0-9,]+ data lines missed in L1 \(32768 B\) and [0-9,]+ in LL \(524288 B\)' \
   "$out/cache524288.txt"
-python3 - "$out/cache524288.json" "$out/cache33554432.json" <<'PY'
+[[ $(grep -Ec '^ +[0-9,]+ +[0-9.]+% +[0-9,]+ +[0-9,]+  ' "$out/cache524288.txt") -eq 5 ]] ||
+  { echo "instructions smoke: expected 5 function lines with cache figures" >&2; exit 1; }
+python3 - "$out/cache524288.json" "$out/cache33554432.json" "$out/run1.json" <<'PY'
 import json, sys
-small, large = (json.load(open(p)) for p in sys.argv[1:3])
+small, large, plain = (json.load(open(p)) for p in sys.argv[1:4])
+# Every function's row is read, whatever its cache columns hold (callgrind_annotate prints a zero
+# as a bare 0): the functions add up to the frame, and the figures agree with the plain run.
+for run in (small, large, plain):
+    listed = sum(run["functions"].values())
+    assert abs(listed - run["per_frame"]) <= 1e-2 * run["per_frame"], (listed, run["per_frame"])
+for key in ("per_frame", "without_scene"):
+    assert abs(small[key] - plain[key]) <= 1e-2 * plain[key], (key, small[key], plain[key])
+for name, value in plain["functions"].items():
+    if abs(value) >= 1e-2 * plain["per_frame"]:
+        got = small["functions"].get(name, 0)
+        assert abs(got - value) <= 1e-2 * plain["per_frame"], (name, value, got)
 for run in (small, large):
     c = run["cache"]
     assert c["l1_bytes"] == 32768, c
@@ -51,7 +64,7 @@ PY
 
 # Bad usage: exit 2, naming the problem.
 for args in "--frames 6,2" "--frames x" "--binary $out/missing" "-- -e grid_dense -f 3" \
-  "--cache --ll 1000" "--cache --l1 65536 --ll 32768"; do
+  "--cache --ll 1000" "--cache --l1 65536 --ll 32768" "--ll 1048576"; do
   set +e
   # shellcheck disable=SC2086
   "$tool" --binary "$bench" $args >/dev/null 2>"$out/err.txt"

@@ -614,44 +614,60 @@ class DenseCellCore {
   // flipped at once (in c's row and its partner's). A pair of two changed slots is thus
   // reported by the first of them and agrees from the second's side; a scan skips a block
   // whose live and paired slots are all changed slots already done.
+  // The loop is spelled out once per kernel (BP_DENSE_MATRIX_LOOP), in a function with that
+  // kernel's target attribute, so that the kernel's scan inlines into it: GCC does not inline an
+  // AVX2 function into one without the attribute (a template instantiated from it does not take
+  // it either), and the call with the scan's set-up took about 65 instructions per changed slot.
+  // The scans are always_inline: at -O2 and below GCC kept them as calls even so.
+#define BP_DENSE_MATRIX_LOOP(SCAN)                                                          \
+  do {                                                                                      \
+    const uint32_t blocks = size_ / kBlock;                                                 \
+    BP_ASSERT(blocks <= kMaxMatrixBlocks); /* ChooseMode drops the matrix beyond the cap */ \
+    uint32_t done[kMaxMatrixBlocks];       /* per block, the changed slots done */          \
+    std::fill_n(done, blocks, 0u);                                                          \
+    Hit hits[kMaxMatrixBlocks];                                                             \
+    for (const uint32_t c : std::span(s.order.data(), s.count)) {                           \
+      /* c is done from its own scan on: its bit keeps it from pairing with itself. */      \
+      done[c / kBlock] |= 1u << (c % kBlock);                                               \
+      const uint32_t n = SCAN(c, done, hits);                                               \
+      for (uint32_t k = 0; k < n; ++k) {                                                    \
+        const Hit& hit = hits[k];                                                           \
+        for (uint32_t diff = hit.diff; diff != 0; diff &= diff - 1) {                       \
+          const auto i = static_cast<uint32_t>(std::countr_zero(diff));                     \
+          const uint32_t j = hit.block * kBlock + i;                                        \
+          if (!Accepts(c, j)) continue;                                                     \
+          changes_.push_back(Change{c, j, ((hit.now >> i) & 1u) != 0});                     \
+          FlipPair(c, j);                                                                   \
+        }                                                                                   \
+      }                                                                                     \
+    }                                                                                       \
+  } while (false)
+
   void FindChangesMatrix(Scratch& s) {
-    const uint32_t blocks = size_ / kBlock;
-    BP_ASSERT(blocks <= kMaxMatrixBlocks);  // ChooseMode drops the matrix beyond the cap
-    uint32_t done[kMaxMatrixBlocks];        // per block, the changed slots done
-    std::fill_n(done, blocks, 0u);
-    Hit hits[kMaxMatrixBlocks];
-    for (const uint32_t c : std::span(s.order.data(), s.count)) {
-      // c is done from its own scan on: its bit keeps it from pairing with itself.
-      done[c / kBlock] |= 1u << (c % kBlock);
-      uint32_t n = 0;
 #ifdef BP_DENSE_WIDE
-      if (kHasWideRows<T> && kernel_ == DenseKernel::kAvx512) {
-        if constexpr (kHasWideRows<T>) n = ScanMatrixWide(c, done, hits);
-      } else if (kHasAvx2Rows<T> && kernel_ == DenseKernel::kAvx2) {
-        if constexpr (kHasAvx2Rows<T>) n = ScanMatrixAvx2(c, done, hits);
-      } else {
-        n = ScanMatrix(c, done, hits);
-      }
-#else
-      n = ScanMatrix(c, done, hits);
-#endif
-      for (uint32_t k = 0; k < n; ++k) {
-        const Hit& hit = hits[k];
-        for (uint32_t diff = hit.diff; diff != 0; diff &= diff - 1) {
-          const auto i = static_cast<uint32_t>(std::countr_zero(diff));
-          const uint32_t j = hit.block * kBlock + i;
-          if (!Accepts(c, j)) continue;
-          changes_.push_back(Change{c, j, ((hit.now >> i) & 1u) != 0});
-          FlipPair(c, j);
-        }
-      }
+    if constexpr (kHasWideRows<T>) {
+      if (kernel_ == DenseKernel::kAvx512) return FindChangesMatrixWide(s);
     }
+    if constexpr (kHasAvx2Rows<T>) {
+      if (kernel_ == DenseKernel::kAvx2) return FindChangesMatrixAvx2(s);
+    }
+#endif
+    BP_DENSE_MATRIX_LOOP(ScanMatrix);
   }
+#ifdef BP_DENSE_WIDE
+  BP_WIDE_TARGET void FindChangesMatrixWide(Scratch& s) requires kHasWideRows<T> {
+    BP_DENSE_MATRIX_LOOP(ScanMatrixWide);
+  }
+  BP_AVX2_TARGET void FindChangesMatrixAvx2(Scratch& s) requires kHasAvx2Rows<T> {
+    BP_DENSE_MATRIX_LOOP(ScanMatrixAvx2);
+  }
+#endif
+#undef BP_DENSE_MATRIX_LOOP
 
   // Writes to hits the blocks where changed slot c's tests now differ from its row of the matrix
   // (the slots done, c among them, excluded); returns their number. The portable kernel
   // (PortableBlock).
-  uint32_t ScanMatrix(uint32_t c, const uint32_t* done, Hit* hits) {
+  [[gnu::always_inline]] uint32_t ScanMatrix(uint32_t c, const uint32_t* done, Hit* hits) {
     T nlo[kAxes], nhi[kAxes];
     for (size_t a = 0; a < kAxes; ++a) {
       nlo[a] = rows_[At(c, 2 * a)];
@@ -832,8 +848,8 @@ class DenseCellCore {
   }
 
   // ScanMatrix with AVX-512: a block whose live and paired slots are all done is skipped.
-  BP_WIDE_TARGET uint32_t ScanMatrixWide(uint32_t c, const uint32_t* done,
-                                         Hit* hits) requires kHasWideRows<T> {
+  [[gnu::always_inline]] BP_WIDE_TARGET uint32_t
+  ScanMatrixWide(uint32_t c, const uint32_t* done, Hit* hits) requires kHasWideRows<T> {
     T nlo[kAxes], nhi[kAxes];
     for (size_t a = 0; a < kAxes; ++a) {
       nlo[a] = rows_[At(c, 2 * a)];
@@ -901,8 +917,8 @@ class DenseCellCore {
 
   // ScanMatrix under AVX2 (a copy of its loop, for the reason given at ScanBlocksAvx2): a block
   // whose live and paired slots are all done is skipped.
-  BP_AVX2_TARGET uint32_t ScanMatrixAvx2(uint32_t c, const uint32_t* done,
-                                         Hit* hits) requires kHasAvx2Rows<T> {
+  [[gnu::always_inline]] BP_AVX2_TARGET uint32_t
+  ScanMatrixAvx2(uint32_t c, const uint32_t* done, Hit* hits) requires kHasAvx2Rows<T> {
     T nlo[kAxes], nhi[kAxes];
     for (size_t a = 0; a < kAxes; ++a) {
       nlo[a] = rows_[At(c, 2 * a)];
