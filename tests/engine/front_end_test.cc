@@ -4,6 +4,8 @@
 //  - fat boxes: with a margin, every engine reports exactly what brute force with the same
 //    margin reports, never misses an overlapping pair of the real boxes, reports only pairs whose
 //    real boxes grown by 4 margins overlap, and skips the updates its fat boxes absorb.
+//  - epochs: the front end's query counter, which dates each slot's pending call, wraps around
+//    without losing or inventing a call (exact and with a margin).
 // Replay one seed with BP_TEST_SEED=<seed>.
 #include <cstdint>
 #include <limits>
@@ -17,6 +19,20 @@
 
 #include "test_support.h"
 #include <gtest/gtest.h>
+
+namespace bp::detail {
+// Moves a front end's epoch (see KeyedEngine) between queries.
+struct KeyedEngineTestPeer {
+  template <class Engine>
+  static uint32_t epoch(const Engine& e) {
+    return e.epoch_;
+  }
+  template <class Engine>
+  static void set_epoch(Engine& e, uint32_t epoch) {
+    e.epoch_ = epoch;
+  }
+};
+}  // namespace bp::detail
 
 namespace bp::test {
 namespace {
@@ -327,6 +343,111 @@ TEST(FatBoxes, NegativeOrNanMarginMeansExact) {
   ASSERT_TRUE(engine.Insert(2, Box<2, double>{{1.5, 0}, {2, 1}}).ok());
   engine.Query(sink);
   EXPECT_TRUE(sink.collides.empty());
+}
+
+// ---- epochs ------------------------------------------------------------------------------
+
+// Two engines of one type take the same calls; one has its epoch moved to just below the wrap.
+// Frames mix every sequence of calls on one key between two queries (update twice, erase and
+// reinsert, insert and erase, insert and update, erase of an updated key), so pending calls of
+// the last epoch before the wrap, and slots last touched many epochs ago, are read after it.
+// Their events must be equal, and (exact) those of the model; both validators must pass.
+template <int K, class T, class Engine>
+void CheckEpochWrap(Engine& wrapped, Engine& plain, bool exact, uint64_t seed) {
+  using BoxType = Box<K, T>;
+  std::mt19937_64 rng(seed);
+  ModelOracle<K, T> model;
+  RecordingSink<uint64_t> ws, ps;
+  std::vector<Pair> collides, uncollides;
+  auto random_box = [&] {
+    BoxType b;
+    for (size_t a = 0; a < static_cast<size_t>(K); ++a) {
+      const int lo = std::uniform_int_distribution<int>(0, 60)(rng);
+      b.lo[a] = static_cast<T>(lo);
+      b.hi[a] = static_cast<T>(lo + std::uniform_int_distribution<int>(0, 12)(rng));
+    }
+    return b;
+  };
+  auto both = [&](auto&& call) {
+    const Status a = call(wrapped), b = call(plain);
+    ASSERT_EQ(a.ok(), b.ok()) << a.ToString() << " / " << b.ToString();
+  };
+  auto insert = [&](uint64_t key) {
+    const BoxType b = random_box();
+    both([&](Engine& e) { return e.Insert(key, b); });
+    model.boxes()[key] = b;
+  };
+  auto update = [&](uint64_t key) {
+    const BoxType b = random_box();
+    both([&](Engine& e) { return e.Update(key, b); });
+    model.boxes()[key] = b;
+  };
+  auto erase = [&](uint64_t key) {
+    both([&](Engine& e) { return e.Erase(key); });
+    model.boxes().erase(key);
+  };
+  auto query = [&](const char* when) {
+    ws.Clear();
+    ps.Clear();
+    wrapped.Query(ws);
+    plain.Query(ps);
+    model.Query(&collides, &uncollides);
+    EXPECT_EQ(ws.collides, ps.collides) << when;
+    EXPECT_EQ(ws.uncollides, ps.uncollides) << when;
+    if (exact) {
+      EXPECT_EQ(ws.collides, collides) << when;
+      EXPECT_EQ(ws.uncollides, uncollides) << when;
+    }
+    EXPECT_TRUE(wrapped.Validate().ok()) << when << ": " << wrapped.Validate().ToString();
+    EXPECT_TRUE(plain.Validate().ok()) << when;
+  };
+  uint64_t next = 0;
+  for (int i = 0; i < 40; ++i) insert(next++);
+  query("first frame");
+  for (uint64_t k = 0; k < 10; ++k) update(k);  // pending in an epoch long before the wrap
+  query("frame before the jump");
+  detail::KeyedEngineTestPeer::set_epoch(wrapped, std::numeric_limits<uint32_t>::max() - 3);
+  for (int frame = 0; frame < 8; ++frame) {
+    auto live = [&] {
+      auto it = model.boxes().begin();
+      std::advance(it, std::uniform_int_distribution<size_t>(0, model.boxes().size() - 1)(rng));
+      return it->first;
+    };
+    const uint64_t a = live(), b = live();
+    update(a);
+    if (b != a) {
+      erase(b);
+      insert(b);  // an update of the same handle
+    }
+    const uint64_t c = live();
+    update(c);
+    update(c);
+    const uint64_t d = next++;
+    insert(d);
+    erase(d);  // nothing reaches the core
+    const uint64_t e = next++;
+    insert(e);
+    update(e);
+    const uint64_t f = live();
+    if (f != e) {
+      update(f);
+      erase(f);
+    }
+    for (int k = 0; k < 4; ++k) update(live());
+    query(("frame " + std::to_string(frame) + " around the wrap").c_str());
+  }
+  EXPECT_LT(detail::KeyedEngineTestPeer::epoch(wrapped), 8u) << "the epoch did not wrap";
+}
+
+TEST(FrontEnd, EpochWrapsAroundWithoutLosingACall) {
+  for (uint64_t seed : TestSeeds(0xE90C, 3)) {
+    SCOPED_TRACE("seed " + std::to_string(seed));
+    GridDense<3, float> wrapped, plain;
+    CheckEpochWrap<3, float>(wrapped, plain, true, seed);
+    SegmentedSap<2, double> wrapped_fat(SegmentedSapOptions(), 1.5);
+    SegmentedSap<2, double> plain_fat(SegmentedSapOptions(), 1.5);
+    CheckEpochWrap<2, double>(wrapped_fat, plain_fat, false, seed);
+  }
 }
 
 }  // namespace

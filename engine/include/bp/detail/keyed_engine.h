@@ -22,19 +22,31 @@
 //   PairTracker& tracker(); const PairTracker& tracker() const; size_t live() const;
 //   void FillStats(Stats* out) const; Status Validate() const;
 //
+// Calls are staged straight into the core's batch: each slot names its entry (stage) in the list
+// of its pending kind (erases_, updates_, inserts_), a second call on the key overwrites or
+// retires (tombstones) that entry, and Query hands the lists to the core as they are. The slots
+// of updated and inserted objects are not visited again at the query: a slot carries the epoch
+// (query count) its pending state belongs to, and a pending insert or update of an earlier epoch
+// reads as applied (live, nothing pending) until a later call settles it (see Settle).
+//
 // Thread safety: none (see bp/broadphase.h).
 // Invariants:
 //  1. index_ maps key iff the key is present (live at the last query and not erased since,
 //     or pending insert), or is live with a pending erase and was not reinserted.
-//  2. A handle is queued at most once between queries; handles are freed only inside Query,
-//     after the core has applied the batch, so a handle never means two keys within one batch.
+//  2. A handle has at most one live (non-tombstone) entry in the staged lists, the one its slot
+//     names, of its pending kind, and only while its slot's epoch is epoch_; handles are freed
+//     only inside Query, after the core has applied the batch, so a handle never means two keys
+//     within one batch.
 //  3. erase + insert of one live key with equal options between queries becomes an update of
 //     the same handle (unless the key was rekeyed in between: then it is a fresh handle again,
 //     and the cancellation keeps the events exact).
+//  4. With a margin, fat_[h] (what the core holds, or is about to) contains the client's last
+//     box.
 //  5. A live handle's options are held by the core's tracker alone (set at the query that
 //     inserts it); a pending insert's options wait in insert_options_ (unless they are the
 //     defaults and no object has had others).
-//  4. With a margin, a slot's box (what the core holds) contains the client's last box.
+//  6. A slot that is neither live nor pending is in free_ or (inserted and erased since the last
+//     query) in cancelled_, and in no other list.
 #pragma once
 
 #include <algorithm>
@@ -94,11 +106,12 @@ class KeyedEngine final : public Broadphase<Core::kDim, typename Core::Coord, Ke
     const uint32_t found = Find(key);
     if (found != kNoHandle) {
       Slot& slot = slots_[found];
+      Settle(slot);
       if (Present(slot)) return Status(StatusCode::kAlreadyExists, "insert: key already present");
       if (core_.tracker().options(found) == options) {
         // Live at the last query and erased since: erase + insert is an update (invariant 3).
-        slot.pending = Pending::kUpdate;
-        slot.box = Fatten(box);
+        Retire(slot);
+        Stage(updates_, found, slot, Pending::kUpdate, Keep(found, box));
         return Status::Ok();
       }
     }
@@ -111,14 +124,13 @@ class KeyedEngine final : public Broadphase<Core::kDim, typename Core::Coord, Ke
       index_.Erase(key, found);
       rekeyed_ = true;
     }
-    uint32_t h = AllocHandle();
+    const uint32_t h = AllocHandle();
     Slot& slot = slots_[h];
     slot.key = key;
-    slot.box = Fatten(box);
     slot.live = false;
-    slot.pending = Pending::kInsert;
+    slot.epoch = epoch_;
+    Stage(inserts_, h, slot, Pending::kInsert, Keep(h, box));
     index_.Insert(key, h);
-    Enqueue(h);
     if (options != ObjectOptions{} || core_.tracker().filtering()) {
       insert_options_.push_back({h, options});
     }
@@ -152,48 +164,21 @@ class KeyedEngine final : public Broadphase<Core::kDim, typename Core::Coord, Ke
 
   void Query(EventSink<Key>& sink) override {
     Stopwatch phase;
-    erases_.clear();
-    updates_.clear();
-    inserts_.clear();
     PairTracker& tracker = core_.tracker();
     // The tracker learns an inserted object's options before the core pairs it (invariant 5).
     // Default options need no call until some object has others (see PairTracker::SetOptions);
     // an object inserted and erased since is skipped (its handle is not reused before commit).
     for (const auto& [h, options] : insert_options_) {
-      if (slots_[h].pending == Pending::kInsert) tracker.SetOptions(h, options);
+      if (PendingOf(slots_[h]) == Pending::kInsert) tracker.SetOptions(h, options);
     }
     insert_options_.clear();
-    // Updates and inserts are committed here, while their slots are in the cache (nothing reads
-    // their pending state during the core's Apply); erased and cancelled handles are committed
-    // after it, as their handles may be freed only then (invariant 2).
-    for (size_t i = 0; i < queued_; ++i) {
-      if (i + 16 < queued_) {
-        const char* ahead = reinterpret_cast<const char*>(&slots_[queue_[i + 16]]);
-        __builtin_prefetch(ahead);
-        __builtin_prefetch(ahead + sizeof(Slot) - 1);
-      }
-      const uint32_t h = queue_[i];
-      Slot& slot = slots_[h];
-      switch (slot.pending) {
-        case Pending::kErase:
-          erases_.push_back(h);
-          after_apply_.push_back(h);
-          continue;
-        case Pending::kUpdate:
-          PushBox(updates_, h, slot.box);
-          break;
-        case Pending::kInsert:
-          PushBox(inserts_, h, slot.box);
-          break;
-        case Pending::kNone:
-          after_apply_.push_back(h);
-          continue;
-      }
-      slot.queued = false;
-      slot.live = true;
-      slot.pending = Pending::kNone;
+    // The staged lists are the batch, once the entries that later calls retired are gone.
+    if (tombstones_ != 0) {
+      std::erase(erases_, kNoHandle);
+      std::erase_if(updates_, [](const HandleBox<K, T>& hb) { return hb.handle == kNoHandle; });
+      std::erase_if(inserts_, [](const HandleBox<K, T>& hb) { return hb.handle == kNoHandle; });
+      tombstones_ = 0;
     }
-    queued_ = 0;
     prepare_ms_ = phase.Lap();
     core_.Apply(erases_, updates_, inserts_);
     core_ms_ = phase.Lap();
@@ -219,30 +204,33 @@ class KeyedEngine final : public Broadphase<Core::kDim, typename Core::Coord, Ke
       (d.now ? collides_ : uncollides_).push_back(std::move(pair));
     }
 
-    // Commit the erased and cancelled slots and free their handles (invariant 2). The core's
-    // apply has evicted their slots and key-index lines since the first walk: both are
+    // Commit the erased slots and free their handles, and those of cancelled inserts (invariant
+    // 2). Updated and inserted slots are not visited: the epoch ends below (see Settle). The
+    // core's apply has evicted the erased slots and key-index lines since their calls: both are
     // prefetched ahead (churn erases keys all over the table).
-    for (size_t i = 0; i < after_apply_.size(); ++i) {
-      if (i + 16 < after_apply_.size()) __builtin_prefetch(&slots_[after_apply_[i + 16]]);
-      if (i + 8 < after_apply_.size()) {
-        const Slot& ahead = slots_[after_apply_[i + 8]];
-        if (ahead.pending == Pending::kErase) {
-          if (const void* line = index_.HomeLine(KeyIndex<Key>::Tag(ahead.key))) {
-            __builtin_prefetch(line);
-          }
+    for (size_t i = 0; i < erases_.size(); ++i) {
+      if (i + 16 < erases_.size()) __builtin_prefetch(&slots_[erases_[i + 16]]);
+      if (i + 8 < erases_.size()) {
+        if (const void* line = index_.HomeLine(KeyIndex<Key>::Tag(slots_[erases_[i + 8]].key))) {
+          __builtin_prefetch(line);
         }
       }
-      const uint32_t h = after_apply_[i];
+      const uint32_t h = erases_[i];
       Slot& slot = slots_[h];
-      slot.queued = false;
-      if (slot.pending == Pending::kErase) {
-        index_.Erase(slot.key, h);  // false if the key was rekeyed to another handle
-        slot.live = false;
-      }
+      index_.Erase(slot.key, h);  // false if the key was rekeyed to another handle
+      slot.live = false;
       slot.pending = Pending::kNone;
-      if (!slot.live) free_.push_back(h);
+      free_.push_back(h);
     }
-    after_apply_.clear();
+    free_.insert(free_.end(), cancelled_.begin(), cancelled_.end());
+    cancelled_.clear();
+    last_erases_ = erases_.size();
+    last_updates_ = updates_.size();
+    last_inserts_ = inserts_.size();
+    erases_.clear();
+    updates_.clear();
+    inserts_.clear();
+    NextEpoch();
 
     std::sort(uncollides_.begin(), uncollides_.end());
     std::sort(collides_.begin(), collides_.end());
@@ -282,9 +270,9 @@ class KeyedEngine final : public Broadphase<Core::kDim, typename Core::Coord, Ke
     core_.FillStats(&s);
     s.objects = core_.live();
     s.overlaps = core_.tracker().overlaps();
-    s.inserts = inserts_.size();
-    s.updates = updates_.size();
-    s.erases = erases_.size();
+    s.inserts = last_inserts_;
+    s.updates = last_updates_;
+    s.erases = last_erases_;
     s.collides = collides_.size();
     s.uncollides = uncollides_.size();
     s.margin = static_cast<double>(margin_);
@@ -301,18 +289,48 @@ class KeyedEngine final : public Broadphase<Core::kDim, typename Core::Coord, Ke
     };
     if (core_.tracker().pending_changes() != 0) return fail("changed pairs left after a query");
     if (!insert_options_.empty()) return fail("insert options left after a query");
-    size_t live = 0, present = 0, queued = 0;
+    size_t live = 0, present = 0, pending = 0, dead = 0;
     for (uint32_t h = 0; h < slots_.size(); ++h) {
       const Slot& slot = slots_[h];
-      live += slot.live ? 1 : 0;
-      queued += slot.queued ? 1 : 0;
+      if (LiveOf(slot)) ++live;
       if (Present(slot)) {
         ++present;
         if (Find(slot.key) != h) return fail("present key not mapped");
       }
+      switch (PendingOf(slot)) {
+        case Pending::kNone:
+          if (!LiveOf(slot)) ++dead;
+          break;
+        case Pending::kErase:
+          if (!slot.live) return fail("erase pending for a dead slot");
+          if (slot.stage >= erases_.size() || erases_[slot.stage] != h) {
+            return fail("pending erase not staged");
+          }
+          ++pending;
+          break;
+        case Pending::kUpdate:
+          if (!slot.live) return fail("update pending for a dead slot");
+          if (slot.stage >= updates_.size() || updates_[slot.stage].handle != h) {
+            return fail("pending update not staged");
+          }
+          ++pending;
+          break;
+        case Pending::kInsert:
+          if (slot.live) return fail("insert pending for a live slot");
+          if (slot.stage >= inserts_.size() || inserts_[slot.stage].handle != h) {
+            return fail("pending insert not staged");
+          }
+          ++pending;
+          break;
+      }
     }
     if (live != core_.live()) return fail("live counts disagree");
-    if (queued != queued_) return fail("queue differs from queued flags");
+    size_t staged = 0, tombstones = 0;
+    for (uint32_t h : erases_) ++(h == kNoHandle ? tombstones : staged);
+    for (const auto& hb : updates_) ++(hb.handle == kNoHandle ? tombstones : staged);
+    for (const auto& hb : inserts_) ++(hb.handle == kNoHandle ? tombstones : staged);
+    if (staged != pending) return fail("staged entries differ from pending slots");
+    if (tombstones != tombstones_) return fail("tombstone count off");
     const char* index_error = nullptr;
     index_.ForEach([&](uint32_t h) {
       if (index_error != nullptr) return;
@@ -323,20 +341,22 @@ class KeyedEngine final : public Broadphase<Core::kDim, typename Core::Coord, Ke
       const Slot& slot = slots_[h];
       if (Find(slot.key) != h) {
         index_error = "key map holds a key twice";
-      } else if (!Present(slot) && !(slot.live && slot.pending == Pending::kErase)) {
+      } else if (!Present(slot) && PendingOf(slot) != Pending::kErase) {
         index_error = "key map names a dead slot";
       }
     });
     if (index_error != nullptr) return fail(index_error);
     if (index_.size() < present) return fail("key map smaller than the present slots");
     std::vector<uint8_t> free_seen(slots_.size(), 0);
-    for (uint32_t h : free_) {
-      if (h >= slots_.size() || free_seen[h]++) return fail("free list broken");
-      const Slot& slot = slots_[h];
-      if (slot.live || slot.queued || slot.pending != Pending::kNone) {
-        return fail("free handle in use");
+    for (const auto* list : {&free_, &cancelled_}) {
+      for (uint32_t h : *list) {
+        if (h >= slots_.size() || free_seen[h]++) return fail("free list broken");
+        const Slot& slot = slots_[h];
+        if (LiveOf(slot) || PendingOf(slot) != Pending::kNone) return fail("free handle in use");
       }
     }
+    if (dead != free_.size() + cancelled_.size()) return fail("a dead slot is lost");
+    if (margin_ > T{} && fat_.size() != slots_.size()) return fail("fat boxes missing");
     return core_.Validate();
   }
 
@@ -344,16 +364,87 @@ class KeyedEngine final : public Broadphase<Core::kDim, typename Core::Coord, Ke
 
   /// The core, for white-box tests.
   const Core& core() const { return core_; }
+  /// White-box tests move the epoch to its wrap-around through this peer.
+  friend struct KeyedEngineTestPeer;
 
  private:
   enum class Pending : uint8_t { kNone, kInsert, kUpdate, kErase };
   struct Slot {
     Key key{};
-    BoxType box;          // the client's box, or its fat box with a margin
-    bool live = false;    // present as of the last query
-    bool queued = false;  // in queue_
+    uint32_t epoch = 0;  // the epoch (query count) that pending and stage belong to
+    uint32_t stage = 0;  // the entry of a pending call in the list of its kind
+    bool live = false;   // in the core as of the last query, once settled
     Pending pending = Pending::kNone;
   };
+
+  // A slot's state as of now. An insert or update staged in an earlier epoch was applied by that
+  // epoch's query: the slot is live with nothing pending (erases and cancelled inserts are
+  // committed in Query itself, so no other kind is left from an earlier epoch).
+  bool LiveOf(const Slot& slot) const {
+    return slot.live || (slot.epoch != epoch_ && slot.pending != Pending::kNone);
+  }
+  Pending PendingOf(const Slot& slot) const {
+    return slot.epoch == epoch_ ? slot.pending : Pending::kNone;
+  }
+  bool Present(const Slot& slot) const {
+    const Pending p = PendingOf(slot);
+    return p == Pending::kInsert || (LiveOf(slot) && p != Pending::kErase);
+  }
+  // Writes the state as of now into a slot about to take a call.
+  void Settle(Slot& slot) {
+    if (slot.epoch == epoch_) return;
+    slot.live = LiveOf(slot);
+    slot.pending = Pending::kNone;
+    slot.epoch = epoch_;
+  }
+  // Ends the epoch after a query. Once in 2^32 queries the counter wraps: every slot is settled
+  // first, so that no stale epoch can equal a new one.
+  void NextEpoch() {
+    if (epoch_ == std::numeric_limits<uint32_t>::max()) {
+      ++epoch_;  // every pending state now reads as applied: settle it under this epoch
+      for (Slot& slot : slots_) {
+        slot.epoch = epoch_ + 1;
+        Settle(slot);
+      }
+    }
+    ++epoch_;
+  }
+
+  // Appends h's pending call of kind p, with box, to list and names the entry in the slot
+  // (settled, with nothing pending).
+  void Stage(std::vector<HandleBox<K, T>>& list, uint32_t h, Slot& slot, Pending p,
+             const BoxType& box) {
+    slot.pending = p;
+    slot.stage = static_cast<uint32_t>(list.size());
+    PushBox(list, h, box);
+  }
+  // Turns the slot's staged entry (if any) into a tombstone, which Query drops.
+  void Retire(Slot& slot) {
+    switch (slot.pending) {
+      case Pending::kNone:
+        return;
+      case Pending::kErase:
+        erases_[slot.stage] = kNoHandle;
+        break;
+      case Pending::kUpdate:
+        updates_[slot.stage].handle = kNoHandle;
+        break;
+      case Pending::kInsert:
+        inserts_[slot.stage].handle = kNoHandle;
+        break;
+    }
+    slot.pending = Pending::kNone;
+    ++tombstones_;
+  }
+  // The box the core is to get for h's new box: box itself, or with a margin its fat box, kept
+  // in fat_.
+  const BoxType& Keep(uint32_t h, const BoxType& box) {
+    if (margin_ > T{}) {
+      fat_[h] = Grow(box, margin_);
+      return fat_[h];
+    }
+    return box;
+  }
 
   // Calls apply(i, tag of key_of(items[i])) for every item in order, with the key index's line
   // of the item kAhead ahead and the slot its entry names kAhead / 2 ahead prefetched (in a
@@ -380,6 +471,7 @@ class KeyedEngine final : public Broadphase<Core::kDim, typename Core::Coord, Ke
           const char* slot = reinterpret_cast<const char*>(&slots_[guess]);
           __builtin_prefetch(slot);
           __builtin_prefetch(slot + sizeof(Slot) - 1);
+          if (margin_ > T{}) __builtin_prefetch(&fat_[guess]);
         }
       }
       const uint32_t tag = tags[i % kAhead];
@@ -399,17 +491,21 @@ class KeyedEngine final : public Broadphase<Core::kDim, typename Core::Coord, Ke
   Status EraseTagged(const Key& key, uint32_t tag) {
     const uint32_t h =
         index_.Find(key, tag, [this](uint32_t x) -> const Key& { return slots_[x].key; });
-    if (h == kNoHandle || !Present(slots_[h])) {
-      return Status(StatusCode::kNotFound, "erase: unknown key");
-    }
+    if (h == kNoHandle) return Status(StatusCode::kNotFound, "erase: unknown key");
     Slot& slot = slots_[h];
+    Settle(slot);
+    if (!Present(slot)) return Status(StatusCode::kNotFound, "erase: unknown key");
     if (slot.live) {
+      Retire(slot);  // an update staged for it, if any
       slot.pending = Pending::kErase;
-      Enqueue(h);
+      slot.stage = static_cast<uint32_t>(erases_.size());
+      erases_.push_back(h);
     } else {
-      // Inserted and erased between two queries: nothing reaches the core.
-      slot.pending = Pending::kNone;
+      // Inserted and erased between two queries: nothing reaches the core, and the handle is
+      // freed after the query (invariant 2).
+      Retire(slot);
       index_.Erase(key, h);
+      cancelled_.push_back(h);
     }
     return Status::Ok();
   }
@@ -419,21 +515,28 @@ class KeyedEngine final : public Broadphase<Core::kDim, typename Core::Coord, Ke
     if (Status s = ValidateBox(box); !s.ok()) return Annotate(s, "update");
     const uint32_t h =
         index_.Find(key, tag, [this](uint32_t x) -> const Key& { return slots_[x].key; });
-    if (h == kNoHandle || !Present(slots_[h])) {
-      return Status(StatusCode::kNotFound, "update: unknown key");
-    }
+    if (h == kNoHandle) return Status(StatusCode::kNotFound, "update: unknown key");
     Slot& slot = slots_[h];
-    if (margin_ > T{}) {
-      if (FatEnough(slot.box, box)) {
-        ++fat_skips_;
-        return Status::Ok();
-      }
-      slot.box = Fatten(box);
-    } else {
-      slot.box = box;
+    Settle(slot);
+    if (!Present(slot)) return Status(StatusCode::kNotFound, "update: unknown key");
+    if (margin_ > T{} && FatEnough(fat_[h], box)) {
+      ++fat_skips_;
+      return Status::Ok();
     }
-    if (slot.pending == Pending::kNone) slot.pending = Pending::kUpdate;
-    Enqueue(h);
+    const BoxType& kept = Keep(h, box);
+    switch (slot.pending) {
+      case Pending::kNone:
+        Stage(updates_, h, slot, Pending::kUpdate, kept);
+        break;
+      case Pending::kUpdate:
+        updates_[slot.stage].box = kept;
+        break;
+      case Pending::kInsert:
+        inserts_[slot.stage].box = kept;
+        break;
+      case Pending::kErase:  // not present
+        break;
+    }
     return Status::Ok();
   }
 
@@ -459,7 +562,6 @@ class KeyedEngine final : public Broadphase<Core::kDim, typename Core::Coord, Ke
     }
     return true;
   }
-  BoxType Fatten(const BoxType& box) const { return margin_ > T{} ? Grow(box, margin_) : box; }
   // True iff fat may stay the fat box of box: it contains box and is not too loose.
   bool FatEnough(const BoxType& fat, const BoxType& box) const {
     return Contains(fat, box) && Contains(Grow(box, loose_), fat);
@@ -489,14 +591,11 @@ class KeyedEngine final : public Broadphase<Core::kDim, typename Core::Coord, Ke
     collides_.resize(co);
   }
 
-  static bool Present(const Slot& slot) {
-    return slot.pending == Pending::kInsert || (slot.live && slot.pending != Pending::kErase);
-  }
   static Status Annotate(const Status& s, const char* what) {
     return Status(s.code(), std::string(what) + ": " + s.message());
   }
 
-  static constexpr uint32_t kNoHandle = KeyIndex<Key>::kNone;
+  static constexpr uint32_t kNoHandle = KeyIndex<Key>::kNone;  // also a retired entry's handle
   uint32_t Find(const Key& key) const {
     return index_.Find(key, [this](uint32_t h) -> const Key& { return slots_[h].key; });
   }
@@ -508,16 +607,8 @@ class KeyedEngine final : public Broadphase<Core::kDim, typename Core::Coord, Ke
       return h;
     }
     slots_.emplace_back();
+    if (margin_ > T{}) fat_.emplace_back();
     return static_cast<uint32_t>(slots_.size() - 1);
-  }
-  // Appends h to the queue unless it is there. Written by index into a list that only grows (a
-  // push_back was a call, out of line, per update in GCC's build of the benchmark).
-  void Enqueue(uint32_t h) {
-    if (!slots_[h].queued) {
-      slots_[h].queued = true;
-      if (queued_ == queue_.size()) queue_.resize(std::max<size_t>(64, 2 * queue_.size()));
-      queue_[queued_++] = h;
-    }
   }
 
   Core core_;
@@ -526,13 +617,19 @@ class KeyedEngine final : public Broadphase<Core::kDim, typename Core::Coord, Ke
   bool rekeyed_ = false;  // a key took a fresh handle since the last query
   size_t fat_skips_ = 0;  // updates absorbed by fat boxes since the last query
   size_t last_fat_skips_ = 0;
-  double prepare_ms_ = 0, core_ms_ = 0, events_ms_ = 0;  // the last query's phases (Stats)
+  size_t last_erases_ = 0, last_updates_ = 0, last_inserts_ = 0;  // the last query's batch
+  double prepare_ms_ = 0, core_ms_ = 0, events_ms_ = 0;           // the last query's phases (Stats)
+  uint32_t epoch_ = 1;  // 1 + queries so far, wrapping past 0 (NextEpoch); a new slot's 0 is stale
   std::vector<Slot> slots_;
-  KeyIndex<Key> index_;  // key -> handle (see invariant 1)
+  std::vector<BoxType> fat_;  // with a margin: each handle's fat box (invariant 4)
+  KeyIndex<Key> index_;       // key -> handle (see invariant 1)
   std::vector<uint32_t> free_;
-  std::vector<uint32_t> queue_;  // handles with pending operations: queue_[0, queued_)
-  size_t queued_ = 0;
-  std::vector<uint32_t> after_apply_;  // queued erases and cancelled inserts, during Query
+  std::vector<uint32_t> cancelled_;  // handles inserted and erased since the last query
+  // The batch being staged: the pending calls by kind (kNoHandle: retired by a later call).
+  std::vector<uint32_t> erases_;
+  std::vector<HandleBox<K, T>> updates_;
+  std::vector<HandleBox<K, T>> inserts_;
+  size_t tombstones_ = 0;
   struct Drained {
     uint32_t a, b;
     bool now;
@@ -540,9 +637,6 @@ class KeyedEngine final : public Broadphase<Core::kDim, typename Core::Coord, Ke
   std::vector<Drained> drained_;  // the tracker's changes of a query, before their keys
   std::vector<std::pair<uint32_t, ObjectOptions>> insert_options_;  // pending inserts' options
   // Per-query buffers, kept to reuse their allocations.
-  std::vector<uint32_t> erases_;
-  std::vector<HandleBox<K, T>> updates_;
-  std::vector<HandleBox<K, T>> inserts_;
   std::vector<std::pair<Key, Key>> collides_;
   std::vector<std::pair<Key, Key>> uncollides_;
 };
