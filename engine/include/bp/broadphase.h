@@ -66,7 +66,7 @@ struct Stats {
   size_t fat_skips = 0;      ///< updates of the last query absorbed by a fat box
   // Wall time of the last query by phase, in milliseconds; 0 where an engine has no such phase.
   // The client's calls before the query (Insert, Update, Erase) are not in any of them.
-  double prepare_ms = 0;  ///< front end: the queued calls turned into the core's batch
+  double prepare_ms = 0;  ///< front end: new objects' options set, retired staged calls dropped
   double core_ms = 0;     ///< the core: its structures updated and its changed pairs found
   double route_ms = 0;    ///< grid, within core_ms: objects routed to their cells (and large ones)
   double cells_ms = 0;    ///< grid, within core_ms: work grouped by cell, cells applied (pool)

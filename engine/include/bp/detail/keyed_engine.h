@@ -46,7 +46,8 @@
 //     inserts it); a pending insert's options wait in insert_options_ (unless they are the
 //     defaults and no object has had others).
 //  6. A slot that is neither live nor pending is in free_ or (inserted and erased since the last
-//     query) in cancelled_, and in no other list.
+//     query) in cancelled_, and in no staged list (a cancelled insert's insert_options_ entry
+//     stays until the query, which skips it).
 #pragma once
 
 #include <algorithm>
