@@ -496,15 +496,14 @@ class KeyedEngine final : public Broadphase<Core::kDim, typename Core::Coord, Ke
     Slot& slot = slots_[h];
     Settle(slot);
     if (!Present(slot)) return Status(StatusCode::kNotFound, "erase: unknown key");
+    Retire(slot);  // the update or insert staged for it, if any
     if (slot.live) {
-      Retire(slot);  // an update staged for it, if any
       slot.pending = Pending::kErase;
       slot.stage = static_cast<uint32_t>(erases_.size());
       erases_.push_back(h);
     } else {
       // Inserted and erased between two queries: nothing reaches the core, and the handle is
       // freed after the query (invariant 2).
-      Retire(slot);
       index_.Erase(key, h);
       cancelled_.push_back(h);
     }
