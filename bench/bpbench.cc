@@ -18,13 +18,13 @@
 #include <cmath>
 #include <cstdint>
 #include <cstdio>
+#include <cstdlib>
 #include <iterator>
 #include <memory>
 #include <sstream>
 #include <string>
 #include <vector>
 
-#include "engines.h"
 #include "peer.h"
 #include <CLI/CLI.hpp>
 #include <sys/resource.h>
@@ -33,6 +33,7 @@
 #include "bp/batch_sap.h"
 #include "bp/brute_force.h"
 #include "bp/dynamic_octree.h"
+#include "bp/engines.h"
 #include "bp/grid.h"
 #include "bp/scene_runner.h"
 #include "bp/segmented_sap.h"
@@ -196,15 +197,22 @@ bp::DynamicOctreeOptions OctreeOptions(const Config& cfg) {
 // The engine of cfg; margin is in the engine's units (the scene's cube width is 1).
 template <int K, class T>
 std::unique_ptr<bp::Broadphase<K, T>> MakeEngine(const Config& cfg, T margin) {
-  bp::bench::EngineChoice choice;
-  choice.engine = cfg.engine;
-  choice.sap = SapOptions(cfg);
-  choice.batch = BatchOptions(cfg);
-  choice.octree = OctreeOptions(cfg);
-  choice.grid_sap = MakeGridOptions<bp::GridSegmentedSapOptions>(cfg, SapOptions(cfg));
-  choice.grid_batch = MakeGridOptions<bp::GridBatchSapOptions>(cfg, BatchOptions(cfg));
-  choice.grid_dense = MakeGridOptions<bp::GridDenseOptions>(cfg, DenseOptions(cfg));
-  return bp::bench::NewEngine<K, T>(choice, margin);
+  // bp::NewEngine: the engines are compiled once, in bp_engines, for the six shapes bpbench runs.
+  bp::EngineSpec spec;
+  spec.algorithm = cfg.engine;
+  spec.segmented_sap = SapOptions(cfg);
+  spec.batch_sap = BatchOptions(cfg);
+  spec.dynamic_octree = OctreeOptions(cfg);
+  spec.grid_segmented_sap = MakeGridOptions<bp::GridSegmentedSapOptions>(cfg, SapOptions(cfg));
+  spec.grid_batch_sap = MakeGridOptions<bp::GridBatchSapOptions>(cfg, BatchOptions(cfg));
+  spec.grid_dense = MakeGridOptions<bp::GridDenseOptions>(cfg, DenseOptions(cfg));
+  std::unique_ptr<bp::Broadphase<K, T>> engine = bp::NewEngine<K, T>(spec, margin);
+  if (engine == nullptr) {
+    std::fprintf(stderr, "bpbench: unknown engine '%s' (known: %s)\n", cfg.engine.c_str(),
+                 bp::EngineAlgorithmList().c_str());
+    std::exit(2);
+  }
+  return engine;
 }
 
 // The engine's overlap set as sorted pair keys.
@@ -701,11 +709,9 @@ int main(int argc, char** argv) {
                  "comma-separated golden scenarios: S2a,S2b,S2c,S1-10k,S1-100k,S1-200k,S3,S4,2-D")
       ->capture_default_str();
   app.add_option("--custom", custom, "a custom 3-D scene instead: N,MOVING,CHURN");
-  app.add_option("--engine,-e", cfg.engine,
-                 "grid_segmented_sap, grid_batch_sap, grid_dense, segmented_sap, batch_sap, "
-                 "dynamic_octree or brute_force")
-      ->check(CLI::IsMember({"segmented_sap", "batch_sap", "grid_segmented_sap", "grid_batch_sap",
-                             "grid_dense", "dynamic_octree", "brute_force"}))
+  app.add_option("--engine,-e", cfg.engine, "one of " + bp::EngineAlgorithmList())
+      ->check(CLI::IsMember(
+          std::vector<std::string>(bp::kEngineAlgorithms.begin(), bp::kEngineAlgorithms.end())))
       ->capture_default_str();
   app.add_option("--cell-size", cfg.cell_size, "grid engines: cell edge (0: automatic)")
       ->check(CLI::Range(0.0, 1e300))

@@ -31,7 +31,8 @@ enum class FrameBoundary {
 /// The coordinate type of the engine's boxes.
 enum class CoordinateType { kFloat, kDouble, kInt32 };
 
-/// Engine algorithm names the daemon can build (the factory lives elsewhere).
+/// Engine algorithm names the daemon can build: bp::kEngineAlgorithms (bp/engines.h, checked
+/// in engine_host.cc), spelled here so that the config does not include the engines.
 inline constexpr std::array<std::string_view, 7> kAlgorithms{
     "brute_force",        "segmented_sap",  "batch_sap", "dynamic_octree",
     "grid_segmented_sap", "grid_batch_sap", "grid_dense"};

@@ -5,14 +5,13 @@
 #include <limits>
 #include <type_traits>
 
-#include "bp/batch_sap.h"
-#include "bp/brute_force.h"
-#include "bp/dynamic_octree.h"
-#include "bp/grid.h"
-#include "bp/segmented_sap.h"
+#include "bp/engines.h"
 
 namespace bp::service {
 namespace {
+
+// The config (config.h, which does not include the engines) names the engines bp::NewEngine builds.
+static_assert(kAlgorithms == kEngineAlgorithms);
 
 std::string ItemName(wire::Op op, uint32_t index, uint64_t id) {
   const char* what = op == wire::OP_INSERT ? "insert" : op == wire::OP_UPDATE ? "update" : "erase";
@@ -335,37 +334,23 @@ class TypedHost final : public EngineHost {
 
 template <int K, class T>
 Status Make(const EngineConfig& config, uint64_t max_objects, std::unique_ptr<EngineHost>* out) {
-  std::unique_ptr<Broadphase<K, T, uint64_t>> engine;
+  EngineSpec spec;
+  spec.algorithm = config.algorithm;
+  const double cell_size = config.cell_size.value_or(0.0);
+  const auto threads = static_cast<unsigned>(EngineThreads(config));
+  auto grid = [&](auto& options) {
+    options.cell_size = cell_size;
+    options.threads = threads;
+  };
+  grid(spec.grid_segmented_sap);
+  grid(spec.grid_batch_sap);
+  grid(spec.grid_dense);
   // The config refuses a fractional margin for int32, so the conversion is exact there.
-  const T margin = static_cast<T>(config.margin);
-  if (config.algorithm == "brute_force") {
-    engine = std::make_unique<BruteForce<K, T, uint64_t>>(BruteForceOptions(), margin);
-  } else if (config.algorithm == "segmented_sap") {
-    engine = std::make_unique<SegmentedSap<K, T, uint64_t>>(SegmentedSapOptions(), margin);
-  } else if (config.algorithm == "batch_sap") {
-    engine = std::make_unique<BatchSap<K, T, uint64_t>>(BatchSapOptions(), margin);
-  } else if (config.algorithm == "grid_segmented_sap") {
-    GridSegmentedSapOptions options;
-    options.cell_size = config.cell_size.value_or(0.0);
-    options.threads = static_cast<unsigned>(EngineThreads(config));
-    engine = std::make_unique<GridSegmentedSap<K, T, uint64_t>>(options, margin);
-  } else if (config.algorithm == "grid_batch_sap") {
-    GridBatchSapOptions options;
-    options.cell_size = config.cell_size.value_or(0.0);
-    options.threads = static_cast<unsigned>(EngineThreads(config));
-    engine = std::make_unique<GridBatchSap<K, T, uint64_t>>(options, margin);
-  } else if (config.algorithm == "grid_dense") {
-    GridDenseOptions options;
-    options.cell_size = config.cell_size.value_or(0.0);
-    options.threads = static_cast<unsigned>(EngineThreads(config));
-    engine = std::make_unique<GridDense<K, T, uint64_t>>(options, margin);
-  } else if (config.algorithm == "dynamic_octree") {
-    engine = std::make_unique<DynamicOctree<K, T, uint64_t>>(DynamicOctreeOptions(), margin);
-  } else {
-    return Status(StatusCode::kInvalidArgument,
-                  "unknown engine algorithm '" + config.algorithm +
-                      "' (known: brute_force, segmented_sap, batch_sap, dynamic_octree, "
-                      "grid_segmented_sap, grid_batch_sap, grid_dense)");
+  std::unique_ptr<Broadphase<K, T, uint64_t>> engine =
+      NewEngine<K, T>(spec, static_cast<T>(config.margin));
+  if (engine == nullptr) {
+    return Status(StatusCode::kInvalidArgument, "unknown engine algorithm '" + config.algorithm +
+                                                    "' (known: " + EngineAlgorithmList() + ")");
   }
   *out = std::make_unique<TypedHost<K, T>>(std::move(engine), max_objects);
   return Status::Ok();

@@ -14,11 +14,14 @@
 #include <random>
 #include <set>
 #include <string>
+#include <string_view>
 #include <utility>
 #include <vector>
 
 #include "test_support.h"
 #include <gtest/gtest.h>
+
+#include "bp/engines.h"
 
 namespace bp::detail {
 // Moves a front end's epoch (see KeyedEngine) between queries.
@@ -149,50 +152,22 @@ TYPED_TEST(OptionsTest, StaticWorldPairsOnlyWithMovers) {
 
 // ---- fattened boxes -------------------------------------------------------------------------
 
-template <int K, class T>
-using EngineFactory = std::unique_ptr<Broadphase<K, T>> (*)(T margin);
-
-template <int K, class T>
-struct MarginEngines {
-  static std::vector<std::pair<std::string, EngineFactory<K, T>>> All() {
-    return {
-        {"brute_force",
-         [](T m) -> std::unique_ptr<Broadphase<K, T>> {
-           return std::make_unique<BruteForce<K, T>>(BruteForceOptions(), m);
-         }},
-        {"segmented_sap",
-         [](T m) -> std::unique_ptr<Broadphase<K, T>> {
-           return std::make_unique<SegmentedSap<K, T>>(SegmentedSapOptions(), m);
-         }},
-        {"batch_sap",
-         [](T m) -> std::unique_ptr<Broadphase<K, T>> {
-           return std::make_unique<BatchSap<K, T>>(BatchSapOptions(), m);
-         }},
-        {"dynamic_octree",
-         [](T m) -> std::unique_ptr<Broadphase<K, T>> {
-           return std::make_unique<DynamicOctree<K, T>>(DynamicOctreeOptions(), m);
-         }},
-        {"grid_segmented_sap",
-         [](T m) -> std::unique_ptr<Broadphase<K, T>> {
-           return std::make_unique<GridSegmentedSap<K, T>>(GridSegmentedSapOptions(), m);
-         }},
-        {"grid_batch_sap_small_cells",
-         [](T m) -> std::unique_ptr<Broadphase<K, T>> {
-           GridBatchSapOptions options;
-           options.cell_size = 4;
-           options.max_cells_per_object = 8;
-           return std::make_unique<GridBatchSap<K, T>>(options, m);
-         }},
-        {"grid_dense_small_cells",
-         [](T m) -> std::unique_ptr<Broadphase<K, T>> {
-           GridDenseOptions options;
-           options.cell_size = 4;
-           options.max_cells_per_object = 8;
-           return std::make_unique<GridDense<K, T>>(options, m);
-         }},
-    };
+// Every engine, built by bp::NewEngine (compiled once, in bp_engines) with the margin.
+std::vector<std::pair<std::string, EngineSpec>> MarginEngines() {
+  std::vector<std::pair<std::string, EngineSpec>> all;
+  for (std::string_view algorithm : kEngineAlgorithms) {
+    EngineSpec spec;
+    spec.algorithm = std::string(algorithm);
+    std::string name = spec.algorithm;
+    if (algorithm == "grid_batch_sap" || algorithm == "grid_dense") {  // small cells
+      spec.grid_batch_sap.cell_size = spec.grid_dense.cell_size = 4;
+      spec.grid_batch_sap.max_cells_per_object = spec.grid_dense.max_cells_per_object = 8;
+      name += "_small_cells";
+    }
+    all.emplace_back(name, spec);
   }
-};
+  return all;
+}
 
 template <class Config>
 class FatBoxTest : public ::testing::Test {};
@@ -207,12 +182,13 @@ TYPED_TEST(FatBoxTest, EveryEngineMatchesBruteForceAndBoundsTheError) {
   using T = typename TypeParam::T;
   using BoxT = Box<K, T>;
   const T margin = 2;
-  for (const auto& [name, make] : MarginEngines<K, T>::All()) {
+  for (const auto& [name, spec] : MarginEngines()) {
     for (uint64_t seed : TestSeeds(77, 3)) {
       SCOPED_TRACE(name + " K=" + std::to_string(K) + " seed=" + std::to_string(seed));
       std::mt19937_64 rng(seed);
       auto below = [&](int n) { return std::uniform_int_distribution<int>(0, n - 1)(rng); };
-      auto engine = make(margin);
+      std::unique_ptr<Broadphase<K, T>> engine = NewEngine<K, T>(spec, margin);
+      ASSERT_TRUE(engine != nullptr);
       BruteForce<K, T> reference(BruteForceOptions(), margin);
       ModelOracle<K, T> exact, loose;  // the real boxes, and the real boxes grown by 4 margins
       auto random_box = [&]() {

@@ -1,6 +1,7 @@
 // The golden values of shared/WORKLOADS.md reproduced through the engines: pairs at frame 0 and
 // at the end, collide/uncollide totals, final set hash and chain, for float, double and integer
-// coordinates. Rows above 10k objects run only with BP_LONG_TESTS=1 (bpbench covers them).
+// coordinates. Rows above 10k objects run only with BP_LONG_TESTS=1 (bpbench covers them). The
+// engines come from bp::NewEngine (compiled once, in bp_engines), as the daemon's and bpbench's do.
 #include <cstdint>
 #include <cstdlib>
 #include <memory>
@@ -8,12 +9,8 @@
 
 #include <gtest/gtest.h>
 
-#include "bp/batch_sap.h"
-#include "bp/brute_force.h"
-#include "bp/dynamic_octree.h"
-#include "bp/grid.h"
+#include "bp/engines.h"
 #include "bp/scene_runner.h"
-#include "bp/segmented_sap.h"
 #include "bp/workload_scenarios.h"
 
 namespace bp::workload {
@@ -42,12 +39,27 @@ void ExpectGolden(Broadphase<K, T>& engine, const GoldenScenario& g) {
   EXPECT_EQ(runner.chain(), g.chain) << std::hex << runner.chain();
 }
 
+EngineSpec Spec(const char* algorithm) {
+  EngineSpec spec;
+  spec.algorithm = algorithm;
+  return spec;
+}
+
+// The golden row `name` through the engine spec names.
 template <int K, Coordinate T>
-void ExpectGoldenSap(const char* name) {
+void ExpectGoldenThrough(const EngineSpec& spec, const char* name) {
   const GoldenScenario* g = FindGolden(name);
   ASSERT_NE(g, nullptr);
-  SegmentedSap<K, T> engine;
-  ExpectGolden<K, T>(engine, *g);
+  std::unique_ptr<Broadphase<K, T>> engine = NewEngine<K, T>(spec);
+  ASSERT_TRUE(engine != nullptr) << spec.algorithm;
+  ExpectGolden<K, T>(*engine, *g);
+}
+
+template <int K, Coordinate T>
+void ExpectGoldenSap(const char* name, const SegmentedSapOptions& options = {}) {
+  EngineSpec spec = Spec("segmented_sap");
+  spec.segmented_sap = options;
+  ExpectGoldenThrough<K, T>(spec, name);
 }
 
 TEST(GoldenSegmentedSap, S2aFloat) { ExpectGoldenSap<3, float>("S2a"); }
@@ -64,8 +76,7 @@ TEST(GoldenSegmentedSap, TinyChunksAlwaysGlobalS2b) {
   SegmentedSapOptions options;
   options.chunk_capacity = 4;
   options.global_sort_fraction = 0;
-  SegmentedSap<3, float> engine(options);
-  ExpectGolden<3, float>(engine, *FindGolden("S2b"));
+  ExpectGoldenSap<3, float>("S2b", options);
 }
 
 // The default presorts S2c, S1-10k and 2-D (80..100 inserts + erases a frame) but not S2a and
@@ -73,27 +84,20 @@ TEST(GoldenSegmentedSap, TinyChunksAlwaysGlobalS2b) {
 TEST(GoldenSegmentedSap, PresortedAlwaysS2aS2b) {
   SegmentedSapOptions options;
   options.presorted_min = 1;
-  for (const char* name : {"S2a", "S2b"}) {
-    SegmentedSap<3, float> engine(options);
-    ExpectGolden<3, float>(engine, *FindGolden(name));
-  }
+  for (const char* name : {"S2a", "S2b"}) ExpectGoldenSap<3, float>(name, options);
 }
 
 TEST(GoldenSegmentedSap, PerEventS2cS1_10k) {
   SegmentedSapOptions options;
   options.presorted_min = 0;
-  for (const char* name : {"S2c", "S1-10k"}) {
-    SegmentedSap<3, float> engine(options);
-    ExpectGolden<3, float>(engine, *FindGolden(name));
-  }
+  for (const char* name : {"S2c", "S1-10k"}) ExpectGoldenSap<3, float>(name, options);
 }
 
 TEST(GoldenSegmentedSap, TinyChunksPresortedS2c) {
   SegmentedSapOptions options;
   options.chunk_capacity = 4;
   options.presorted_min = 1;
-  SegmentedSap<3, float> engine(options);
-  ExpectGolden<3, float>(engine, *FindGolden("S2c"));
+  ExpectGoldenSap<3, float>("S2c", options);
 }
 
 TEST(GoldenSegmentedSap, LargeRows) {
@@ -102,11 +106,10 @@ TEST(GoldenSegmentedSap, LargeRows) {
 }
 
 template <int K, Coordinate T>
-void ExpectGoldenBatch(const char* name) {
-  const GoldenScenario* g = FindGolden(name);
-  ASSERT_NE(g, nullptr);
-  BatchSap<K, T> engine;
-  ExpectGolden<K, T>(engine, *g);
+void ExpectGoldenBatch(const char* name, const BatchSapOptions& options = {}) {
+  EngineSpec spec = Spec("batch_sap");
+  spec.batch_sap = options;
+  ExpectGoldenThrough<K, T>(spec, name);
 }
 
 TEST(GoldenBatchSap, S2aFloat) { ExpectGoldenBatch<3, float>("S2a"); }
@@ -122,8 +125,7 @@ TEST(GoldenBatchSap, Planar2DDouble) { ExpectGoldenBatch<2, double>("2-D"); }
 TEST(GoldenBatchSap, AlwaysLocalS2b) {
   BatchSapOptions options;
   options.global_sort_fraction = 1e300;  // local sort whenever no record is pending
-  BatchSap<3, float> engine(options);
-  ExpectGolden<3, float>(engine, *FindGolden("S2b"));
+  ExpectGoldenBatch<3, float>("S2b", options);
 }
 
 TEST(GoldenBatchSap, LargeRows) {
@@ -134,79 +136,80 @@ TEST(GoldenBatchSap, LargeRows) {
 // The grid over each cell type: every S row of WORKLOADS.md (the rows above 10k objects with
 // BP_LONG_TESTS=1), the automatic cell size, and small cells (size 4: objects span up to 8 cells
 // and migrate often; size 1.5 with at most 4 cells per object: many objects are large).
-template <class Engine>
-void ExpectGoldenGrid(const char* name, const typename Engine::Options& options = {}) {  // 3-D rows
-  const GoldenScenario* g = FindGolden(name);
-  ASSERT_NE(g, nullptr);
-  Engine engine(options);
-  ExpectGolden<3, float>(engine, *g);
+EngineSpec SegmentedGrid(const GridSegmentedSapOptions& options = {}) {
+  EngineSpec spec = Spec("grid_segmented_sap");
+  spec.grid_segmented_sap = options;
+  return spec;
+}
+EngineSpec BatchGrid(const GridBatchSapOptions& options = {}) {
+  EngineSpec spec = Spec("grid_batch_sap");
+  spec.grid_batch_sap = options;
+  return spec;
+}
+EngineSpec DenseGrid(const GridDenseOptions& options = {}) {
+  EngineSpec spec = Spec("grid_dense");
+  spec.grid_dense = options;
+  return spec;
 }
 
 TEST(GoldenGrid, SegmentedCellsAuto) {
   for (const char* name : {"S2a", "S2b", "S2c", "S1-10k"}) {
-    ExpectGoldenGrid<GridSegmentedSap<3, float>>(name);
+    ExpectGoldenThrough<3, float>(SegmentedGrid(), name);
   }
-  GridSegmentedSap<2, double> planar;
-  ExpectGolden<2, double>(planar, *FindGolden("2-D"));
+  ExpectGoldenThrough<2, double>(SegmentedGrid(), "2-D");
 }
 
 TEST(GoldenGrid, BatchCellsAuto) {
   for (const char* name : {"S2a", "S2b", "S2c", "S1-10k"}) {
-    ExpectGoldenGrid<GridBatchSap<3, float>>(name);
+    ExpectGoldenThrough<3, float>(BatchGrid(), name);
   }
-  GridBatchSap<2, float> planar;
-  ExpectGolden<2, float>(planar, *FindGolden("2-D"));
+  ExpectGoldenThrough<2, float>(BatchGrid(), "2-D");
 }
 
 TEST(GoldenGrid, DenseCellsAuto) {
   for (const char* name : {"S2a", "S2b", "S2c", "S1-10k"}) {
-    ExpectGoldenGrid<GridDense<3, float>>(name);
+    ExpectGoldenThrough<3, float>(DenseGrid(), name);
   }
   GridDenseOptions few;
   few.objects_per_cell = 8;  // many small cells: migrations on most frames
-  ExpectGoldenGrid<GridDense<3, float>>("S2c", few);
-  GridDense<2, double> planar;
-  ExpectGolden<2, double>(planar, *FindGolden("2-D"));
-  GridDense<3, int32_t> integral;
-  ExpectGolden<3, int32_t>(integral, *FindGolden("S2b"));
+  ExpectGoldenThrough<3, float>(DenseGrid(few), "S2c");
+  ExpectGoldenThrough<2, double>(DenseGrid(), "2-D");
+  ExpectGoldenThrough<3, int32_t>(DenseGrid(), "S2b");
 }
 
 TEST(GoldenGrid, Int32AndDouble) {
-  GridSegmentedSap<3, int32_t> a;
-  ExpectGolden<3, int32_t>(a, *FindGolden("S2c"));
-  GridBatchSap<3, double> b;
-  ExpectGolden<3, double>(b, *FindGolden("S1-10k"));
+  ExpectGoldenThrough<3, int32_t>(SegmentedGrid(), "S2c");
+  ExpectGoldenThrough<3, double>(BatchGrid(), "S1-10k");
 }
 
 TEST(GoldenGrid, SmallCellsAndLargeObjects) {
   GridSegmentedSapOptions small;
   small.cell_size = 4;
-  ExpectGoldenGrid<GridSegmentedSap<3, float>>("S2c", small);
+  ExpectGoldenThrough<3, float>(SegmentedGrid(small), "S2c");
   GridBatchSapOptions tiny;
   tiny.cell_size = 1.5;
   tiny.max_cells_per_object = 4;
-  ExpectGoldenGrid<GridBatchSap<3, float>>("S2b", tiny);
+  ExpectGoldenThrough<3, float>(BatchGrid(tiny), "S2b");
   GridDenseOptions dense_tiny;
   dense_tiny.cell_size = 1.5;
   dense_tiny.max_cells_per_object = 4;
-  ExpectGoldenGrid<GridDense<3, float>>("S2a", dense_tiny);
+  ExpectGoldenThrough<3, float>(DenseGrid(dense_tiny), "S2a");
 }
 
 TEST(GoldenGrid, LargeRows) {
   if (!LongTests()) GTEST_SKIP() << "set BP_LONG_TESTS=1 for S1-100k, S1-200k, S3, S4";
   for (const char* name : {"S4", "S1-100k", "S3", "S1-200k"}) {
-    ExpectGoldenGrid<GridSegmentedSap<3, float>>(name);
-    ExpectGoldenGrid<GridBatchSap<3, float>>(name);
-    ExpectGoldenGrid<GridDense<3, float>>(name);
+    ExpectGoldenThrough<3, float>(SegmentedGrid(), name);
+    ExpectGoldenThrough<3, float>(BatchGrid(), name);
+    ExpectGoldenThrough<3, float>(DenseGrid(), name);
   }
 }
 
 template <int K, Coordinate T>
 void ExpectGoldenOctree(const char* name, const DynamicOctreeOptions& options = {}) {
-  const GoldenScenario* g = FindGolden(name);
-  ASSERT_NE(g, nullptr);
-  DynamicOctree<K, T> engine(options);
-  ExpectGolden<K, T>(engine, *g);
+  EngineSpec spec = Spec("dynamic_octree");
+  spec.dynamic_octree = options;
+  ExpectGoldenThrough<K, T>(spec, name);
 }
 
 TEST(GoldenDynamicOctree, S2aFloat) { ExpectGoldenOctree<3, float>("S2a"); }
@@ -232,10 +235,7 @@ TEST(GoldenDynamicOctree, LargeRows) {
   for (const char* name : {"S4", "S1-100k", "S3", "S1-200k"}) ExpectGoldenOctree<3, float>(name);
 }
 
-TEST(GoldenBruteForce, S2aFloat) {
-  BruteForce<3, float> engine;
-  ExpectGolden<3, float>(engine, *FindGolden("S2a"));
-}
+TEST(GoldenBruteForce, S2aFloat) { ExpectGoldenThrough<3, float>(Spec("brute_force"), "S2a"); }
 
 }  // namespace
 }  // namespace bp::workload

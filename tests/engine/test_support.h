@@ -106,9 +106,10 @@ struct EngineConfig {
   static std::string Name() { return Make::Name(); }
 };
 
-// The engines are built out of line (test_engines_*.cc, one explicit instantiation per shape), so
-// that a test which sees them only as Broadphase<K, T> does not compile every engine again: under
-// ASan the typed suites took half an hour to build when each of them did.
+// The engines are built out of line (test_engines.cc, by bp::NewEngine, compiled once in
+// bp_engines for the daemon, bpbench and the tests alike), so that a test which sees them only as
+// Broadphase<K, T> does not compile every engine again: under ASan the typed suites took half an
+// hour to build when each of them did.
 /// The cell type of a test grid (kDensePortable: dense cells forced onto the portable kernel, so
 /// that a CPU with a wide kernel checks the portable one too; kDenseRows: dense cells that never
 /// keep a pair matrix; kDenseSmallMatrix: dense cells whose matrix is capped at 32 slots, so that
@@ -149,10 +150,10 @@ template <int K, class T>
 std::unique_ptr<Broadphase<K, T>> NewBatchSap(const BatchSapOptions& options);
 template <int K, class T>
 std::unique_ptr<Broadphase<K, T>> NewDynamicOctree(const DynamicOctreeOptions& options);
-/// Segmented and batch cells (test_engines_grid.cc).
+/// Segmented and batch cells.
 template <int K, class T>
 std::unique_ptr<Broadphase<K, T>> NewSapCellGrid(const GridSpec& spec);
-/// Dense cells, on the widest kernel, the portable one or AVX2 (test_engines_dense.cc).
+/// Dense cells, on the widest kernel, the portable one or AVX2.
 template <int K, class T>
 std::unique_ptr<Broadphase<K, T>> NewDenseGrid(const GridSpec& spec);
 
@@ -245,9 +246,16 @@ struct MakeDynamicOctree {
 };
 
 /// Seeds to run: BP_TEST_SEED alone if set, else `count` seeds derived from `base`, or
-/// BP_TEST_SEEDS of them (a soak run: BP_TEST_SEEDS=500).
+/// BP_TEST_SEEDS of them (a soak run: BP_TEST_SEEDS=500). A sanitizer build (BP_TEST_SANITIZED,
+/// tests/CMakeLists.txt) runs the first half of them, rounded up: there the seeds look for
+/// memory errors and undefined behaviour on the paths the first seeds already take, at five times
+/// the release stage's cost, while the release stage (validators on) checks every seed against
+/// the oracle.
 inline std::vector<uint64_t> TestSeeds(uint64_t base, int count) {
   if (const char* env = std::getenv("BP_TEST_SEED")) return {std::strtoull(env, nullptr, 0)};
+#if defined(BP_TEST_SANITIZED)
+  count = (count + 1) / 2;
+#endif
   if (const char* env = std::getenv("BP_TEST_SEEDS")) count = std::atoi(env);
   std::vector<uint64_t> seeds;
   for (int i = 0; i < count; ++i) seeds.push_back(base + static_cast<uint64_t>(i) * 7919);

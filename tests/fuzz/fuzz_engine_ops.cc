@@ -23,6 +23,8 @@
 #include "../engine/test_support.h"
 #include <fuzzer/FuzzedDataProvider.h>
 
+#include "bp/engines.h"
+
 namespace {
 
 using bp::test::CellKind;
@@ -82,6 +84,7 @@ bp::Box<K, T> ConsumeBox(FuzzedDataProvider& fdp) {
   return box;
 }
 
+// The engine the input picks, built by bp::NewEngine (compiled once, in bp_engines).
 template <int K, class T>
 std::unique_ptr<bp::Broadphase<K, T>> MakeEngine(FuzzedDataProvider& fdp) {
   const double cell_sizes[] = {0, 0, 0.3, 1, 3, 1e-3, 1e6};
@@ -92,46 +95,47 @@ std::unique_ptr<bp::Broadphase<K, T>> MakeEngine(FuzzedDataProvider& fdp) {
     if (fdp.ConsumeBool()) options.objects_per_cell = fdp.ConsumeIntegralInRange<int>(1, 64);
   };
   const double fractions[] = {0.07, 0, 1e300, 0.5};
+  bp::EngineSpec spec;
   switch (fdp.ConsumeIntegralInRange<int>(0, 7)) {
     case 0:
-      return std::make_unique<bp::BruteForce<K, T>>();
+      spec.algorithm = "brute_force";
+      break;
     case 1: {
-      bp::SegmentedSapOptions o;
+      spec.algorithm = "segmented_sap";
+      bp::SegmentedSapOptions& o = spec.segmented_sap;
       o.chunk_capacity = 4u << fdp.ConsumeIntegralInRange<uint32_t>(0, 4);
       o.global_sort_fraction = fractions[fdp.ConsumeIntegralInRange<size_t>(0, 3)];
       o.bulk_load_min = fdp.ConsumeIntegralInRange<uint32_t>(0, 70);
       o.presorted_min = fdp.ConsumeIntegralInRange<uint32_t>(0, 40);
-      return std::make_unique<bp::SegmentedSap<K, T>>(o);
+      break;
     }
-    case 2: {
-      bp::BatchSapOptions o;
-      o.global_sort_fraction = fractions[fdp.ConsumeIntegralInRange<size_t>(0, 3)];
-      return std::make_unique<bp::BatchSap<K, T>>(o);
-    }
-    case 3: {
-      bp::GridSegmentedSapOptions o;
-      grid_options(o);
-      o.cell.chunk_capacity = 4;
-      return std::make_unique<bp::GridSegmentedSap<K, T>>(o);
-    }
-    case 4: {
-      bp::GridBatchSapOptions o;
-      grid_options(o);
-      return std::make_unique<bp::GridBatchSap<K, T>>(o);
-    }
+    case 2:
+      spec.algorithm = "batch_sap";
+      spec.batch_sap.global_sort_fraction = fractions[fdp.ConsumeIntegralInRange<size_t>(0, 3)];
+      break;
+    case 3:
+      spec.algorithm = "grid_segmented_sap";
+      grid_options(spec.grid_segmented_sap);
+      spec.grid_segmented_sap.cell.chunk_capacity = 4;
+      break;
+    case 4:
+      spec.algorithm = "grid_batch_sap";
+      grid_options(spec.grid_batch_sap);
+      break;
     case 5:
-    case 6: {
-      bp::GridDenseOptions o;
-      grid_options(o);
-      return std::make_unique<bp::GridDense<K, T>>(o);
-    }
-    default: {
-      bp::DynamicOctreeOptions o;
-      o.max_objects_per_node = fdp.ConsumeIntegralInRange<uint32_t>(1, 32);
-      o.max_depth = fdp.ConsumeIntegralInRange<uint32_t>(1, 20);
-      return std::make_unique<bp::DynamicOctree<K, T>>(o);
-    }
+    case 6:
+      spec.algorithm = "grid_dense";
+      grid_options(spec.grid_dense);
+      break;
+    default:
+      spec.algorithm = "dynamic_octree";
+      spec.dynamic_octree.max_objects_per_node = fdp.ConsumeIntegralInRange<uint32_t>(1, 32);
+      spec.dynamic_octree.max_depth = fdp.ConsumeIntegralInRange<uint32_t>(1, 20);
+      break;
   }
+  std::unique_ptr<bp::Broadphase<K, T>> engine = bp::NewEngine<K, T>(spec);
+  if (engine == nullptr) std::abort();  // every name above is one of bp::kEngineAlgorithms
+  return engine;
 }
 
 [[noreturn]] void Fail(const char* what, const std::string& engine, int step) {

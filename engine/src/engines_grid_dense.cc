@@ -1,0 +1,16 @@
+// NewEngine's grid of dense cells (see engines_families.h).
+#include "engines_families.h"
+
+namespace bp::detail {
+
+template <int K, Coordinate T>
+std::unique_ptr<Broadphase<K, T>> NewGridDense(const EngineSpec& spec, T margin) {
+  return std::make_unique<GridDense<K, T>>(spec.grid_dense, margin);
+}
+
+#define BP_INSTANTIATE(K, T) \
+  template std::unique_ptr<Broadphase<K, T>> NewGridDense<K, T>(const EngineSpec&, T);
+BP_ENGINES_FOR_EACH_SHAPE(BP_INSTANTIATE)
+#undef BP_INSTANTIATE
+
+}  // namespace bp::detail
