@@ -14,7 +14,8 @@ std::string EngineAlgorithmList() {
 }
 
 template <int K, Coordinate T>
-std::unique_ptr<Broadphase<K, T>> NewEngine(const EngineSpec& spec, T margin) {
+std::unique_ptr<Broadphase<K, T>> NewEngine(const EngineSpec& spec,
+                                            T margin) requires EngineShape<K, T> {
   if (spec.algorithm == "grid_dense") return detail::NewGridDense<K, T>(spec, margin);
   if (spec.algorithm == "grid_segmented_sap")
     return detail::NewGridSegmentedSap<K, T>(spec, margin);

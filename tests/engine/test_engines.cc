@@ -3,7 +3,6 @@
 // library does not build, compiled here.
 #include <cstdio>
 #include <cstdlib>
-#include <type_traits>
 
 #include "test_support.h"
 
@@ -11,11 +10,6 @@
 
 namespace bp::test {
 namespace {
-
-template <int K, class T>
-constexpr bool kLibraryShape = (K == 2 || K == 3) &&
-                               (std::is_same_v<T, float> || std::is_same_v<T, double> ||
-                                std::is_same_v<T, int32_t>);
 
 template <int K, class T>
 std::unique_ptr<Broadphase<K, T>> FromLibrary(const EngineSpec& spec) {
@@ -37,7 +31,7 @@ EngineSpec Named(const char* algorithm) {
 
 template <int K, class T>
 std::unique_ptr<Broadphase<K, T>> NewBruteForce() {
-  if constexpr (kLibraryShape<K, T>) {
+  if constexpr (EngineShape<K, T>) {
     return FromLibrary<K, T>(Named("brute_force"));
   } else {
     return std::make_unique<BruteForce<K, T>>();
@@ -45,7 +39,7 @@ std::unique_ptr<Broadphase<K, T>> NewBruteForce() {
 }
 template <int K, class T>
 std::unique_ptr<Broadphase<K, T>> NewSegmentedSap(const SegmentedSapOptions& options) {
-  if constexpr (kLibraryShape<K, T>) {
+  if constexpr (EngineShape<K, T>) {
     EngineSpec spec = Named("segmented_sap");
     spec.segmented_sap = options;
     return FromLibrary<K, T>(spec);
@@ -55,7 +49,7 @@ std::unique_ptr<Broadphase<K, T>> NewSegmentedSap(const SegmentedSapOptions& opt
 }
 template <int K, class T>
 std::unique_ptr<Broadphase<K, T>> NewBatchSap(const BatchSapOptions& options) {
-  if constexpr (kLibraryShape<K, T>) {
+  if constexpr (EngineShape<K, T>) {
     EngineSpec spec = Named("batch_sap");
     spec.batch_sap = options;
     return FromLibrary<K, T>(spec);
@@ -65,7 +59,7 @@ std::unique_ptr<Broadphase<K, T>> NewBatchSap(const BatchSapOptions& options) {
 }
 template <int K, class T>
 std::unique_ptr<Broadphase<K, T>> NewDynamicOctree(const DynamicOctreeOptions& options) {
-  if constexpr (kLibraryShape<K, T>) {
+  if constexpr (EngineShape<K, T>) {
     EngineSpec spec = Named("dynamic_octree");
     spec.dynamic_octree = options;
     return FromLibrary<K, T>(spec);

@@ -10,10 +10,13 @@
 // construct the engine's class directly (bp/grid.h, bp/segmented_sap.h, ...).
 //
 // Every translation unit that instantiates an engine must agree on BP_VALIDATE (see
-// engine/CMakeLists.txt): the library is compiled with this build's BP_VALIDATE.
+// engine/CMakeLists.txt): the library is compiled with this build's BP_VALIDATE, and its
+// targets hand the define on. The same holds for NDEBUG where a program also constructs engine
+// classes itself: build it as the library was built (both Release, say).
 #pragma once
 
 #include <array>
+#include <concepts>
 #include <cstdint>
 #include <memory>
 #include <string>
@@ -47,11 +50,17 @@ struct EngineSpec {
   GridDenseOptions grid_dense;
 };
 
+/// The shapes NewEngine is compiled for: K = 2, 3 and T = float, double, int32_t.
+template <int K, class T>
+concept EngineShape = (K == 2 || K == 3) && (std::same_as<T, float> || std::same_as<T, double> ||
+                                             std::same_as<T, int32_t>);
+
 /// The engine spec.algorithm names, with that kind's options and the given margin (in the
 /// engine's units: every box is grown by it on each side, see the engines' constructors);
-/// nullptr if no engine has that name. Defined for K = 2, 3 and T = float, double, int32_t.
+/// nullptr if no engine has that name.
 template <int K, Coordinate T>
-std::unique_ptr<Broadphase<K, T>> NewEngine(const EngineSpec& spec, T margin = T{});
+std::unique_ptr<Broadphase<K, T>> NewEngine(const EngineSpec& spec,
+                                            T margin = T{}) requires EngineShape<K, T>;
 
 #define BP_ENGINES_FOR_EACH_SHAPE(X) \
   X(2, float) X(3, float) X(2, double) X(3, double) X(2, int32_t) X(3, int32_t)
