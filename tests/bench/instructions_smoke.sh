@@ -52,12 +52,17 @@ for name, value in plain["functions"].items():
     if abs(value) >= 1e-2 * plain["per_frame"]:
         got = small["functions"].get(name, 0)
         assert abs(got - value) <= 1e-2 * plain["per_frame"], (name, value, got)
+# A figure per frame is the difference of two processes' totals over 10 frames, and their cold
+# misses can differ by a line or two (the layout of the stack and the environment moves with the
+# caller: under ctest a 32 MiB LL gave -0.1 per frame, one line). So 0.5 per frame is allowed.
+slack = 0.5
 for run in (small, large):
     c = run["cache"]
     assert c["l1_bytes"] == 32768, c
-    assert 0 < c["l1_misses"] and 0 <= c["ll_misses"] <= c["l1_misses"], c
+    assert 0 < c["l1_misses"] and -slack <= c["ll_misses"] <= c["l1_misses"], c
     assert any("GridCore" in name for name in c["functions"]), list(c["functions"])[:5]
-assert large["cache"]["ll_misses"] <= small["cache"]["ll_misses"], (small["cache"], large["cache"])
+assert large["cache"]["ll_misses"] <= small["cache"]["ll_misses"] + slack, (small["cache"],
+                                                                            large["cache"])
 # The simulation changes no instruction count (within the phase clocks' 1%).
 assert abs(small["per_frame"] - large["per_frame"]) <= 1e-2 * small["per_frame"]
 PY

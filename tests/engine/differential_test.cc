@@ -214,6 +214,8 @@ class DifferentialCore : public ::testing::Test {
         if (Below(4) == 0 && model_.boxes().size() < 150) {
           size_t n = model_.boxes().size() + 1 + Below(8);
           for (size_t i = 0; i < n; ++i) DoInsert(next_key_++, RandomBox());
+        } else if (Below(3) == 0) {
+          InsertBatch();
         }
         return;
       default:  // many objects onto one coordinate
@@ -263,6 +265,55 @@ class DifferentialCore : public ::testing::Test {
     }
   }
 
+  // Items past the front end's look-ahead (16) at times; a live key, a key named twice, an
+  // erased key inserted again (with its old options: an update of its handle; with others: a
+  // fresh handle) and invalid boxes among them; options per item, or none (the defaults).
+  // Refused items are reported by index with Insert's code and change nothing.
+  void InsertBatch() {
+    std::vector<typename Broadphase<K, T>::Item> items;
+    std::vector<ObjectOptions> options;
+    const bool with_options = Below(2) == 0;
+    std::map<size_t, StatusCode> bad;  // index -> the code it must be refused with
+    std::set<uint64_t> named;          // inserted by this batch
+    const size_t n = 1 + Below(Below(3) == 0 ? 40 : 6);
+    for (size_t i = 0; i < n; ++i) {
+      const uint64_t pick = Below(10);
+      uint64_t key = next_key_;
+      BoxType box = RandomBox();
+      if (pick == 0 && !model_.boxes().empty()) {
+        key = RandomLiveKey();
+      } else if (pick == 1 && !items.empty()) {
+        key = items.back().key;
+      } else if (pick == 2) {
+        box.lo[0] = static_cast<T>(box.hi[0] + 1);
+      } else if (pick == 3 && !erased_keys_.empty()) {
+        key = erased_keys_[Below(erased_keys_.size())];
+      }
+      if (key == next_key_) ++next_key_;
+      const ObjectOptions o = with_options ? RandomOptions() : ObjectOptions{};
+      if (!(box.lo[0] <= box.hi[0])) {
+        bad[items.size()] = StatusCode::kInvalidArgument;
+      } else if (model_.boxes().count(key) != 0 || named.count(key) != 0) {
+        bad[items.size()] = StatusCode::kAlreadyExists;
+      } else {
+        named.insert(key);
+      }
+      items.push_back({key, box});
+      if (with_options) options.push_back(o);
+    }
+    std::map<size_t, StatusCode> refused;
+    const size_t count = engine_->InsertMany(items, options, [&](size_t i, const Status& s) {
+      EXPECT_TRUE(refused.emplace(i, s.code()).second) << "item " << i << " refused twice";
+    });
+    EXPECT_EQ(count, refused.size());
+    ASSERT_EQ(refused, bad);
+    for (size_t i = 0; i < items.size(); ++i) {
+      if (bad.count(i)) continue;
+      model_.boxes()[items[i].key] = items[i].box;
+      model_.options()[items[i].key] = with_options ? options[i] : ObjectOptions{};
+    }
+  }
+
   // Keys past the front end's look-ahead (16) at times; a key named twice, an unknown key and
   // a key inserted in this frame (a cancelled insert) among them. Refused keys are reported by
   // index with Erase's code and change nothing.
@@ -306,6 +357,20 @@ class DifferentialCore : public ::testing::Test {
 
   void BadCalls() {
     uint64_t unknown = next_key_ + 1000000;
+    {
+      // Options of another length than the items: every item refused, nothing inserted.
+      const std::vector<typename Broadphase<K, T>::Item> items = {{unknown, RandomBox()},
+                                                                  {unknown + 1, RandomBox()}};
+      const std::vector<ObjectOptions> one(1);
+      size_t seen = 0;
+      EXPECT_EQ(engine_->InsertMany(items, one,
+                                    [&](size_t, const Status& s) {
+                                      EXPECT_EQ(s.code(), StatusCode::kInvalidArgument);
+                                      ++seen;
+                                    }),
+                2u);
+      EXPECT_EQ(seen, 2u);
+    }
     EXPECT_EQ(engine_->Update(unknown, RandomBox()).code(), StatusCode::kNotFound);
     EXPECT_EQ(engine_->Erase(unknown).code(), StatusCode::kNotFound);
     if (!model_.boxes().empty()) {

@@ -96,6 +96,33 @@ class Broadphase {
   virtual Status Insert(const Key& key, const BoxType& box, const ObjectOptions& options) = 0;
   /// Insert with the default options (every pair accepted).
   Status Insert(const Key& key, const BoxType& box) { return Insert(key, box, ObjectOptions{}); }
+  /// Insert(items[i].key, items[i].box, options[i]) for every item, in order; an empty options
+  /// means the defaults for all. A refused item changes nothing and is passed to refused (when
+  /// set) with its index and the Status Insert would return; the other items are kept. Returns
+  /// the number refused. options of another size than items refuses every item
+  /// (InvalidArgument). Engines may override it to overlap the look-ups of many items, as
+  /// UpdateMany does.
+  virtual size_t InsertMany(std::span<const Item> items,
+                            std::span<const ObjectOptions> options = {},
+                            const RefusedFn& refused = nullptr) {
+    if (!options.empty() && options.size() != items.size()) {
+      const Status s(StatusCode::kInvalidArgument, "insert: " + std::to_string(options.size()) +
+                                                       " options for " +
+                                                       std::to_string(items.size()) + " items");
+      if (refused) {
+        for (size_t i = 0; i < items.size(); ++i) refused(i, s);
+      }
+      return items.size();
+    }
+    size_t count = 0;
+    for (size_t i = 0; i < items.size(); ++i) {
+      Status s = Insert(items[i].key, items[i].box, options.empty() ? ObjectOptions{} : options[i]);
+      if (s.ok()) continue;
+      ++count;
+      if (refused) refused(i, s);
+    }
+    return count;
+  }
   /// Buffers a new box for key. NotFound if key is not live; InvalidArgument if the box is invalid.
   virtual Status Update(const Key& key, const BoxType& box) = 0;
   /// Update(item.key, item.box) for every item, in order (a later item on a key wins). A refused

@@ -68,6 +68,7 @@
 #include "bp/detail/cell_space.h"
 #include "bp/detail/flat_map.h"
 #include "bp/detail/flat_set.h"
+#include "bp/detail/huge_alloc.h"
 #include "bp/detail/keyed_engine.h"
 #include "bp/detail/pair_tracker.h"
 #include "bp/detail/stopwatch.h"
@@ -215,7 +216,7 @@ class GridCore {
   // index (zero outside touched), the cells it touched, and the updates left for the serial pass
   // (indices into the query's updates).
   struct Shard {
-    std::vector<Routed> routed;
+    HugeVector<Routed> routed;
     std::vector<uint32_t> counts, touched, deferred;
   };
   enum class State : uint8_t { kDead, kLive };
@@ -797,7 +798,7 @@ class GridCore {
     Touch(ref.cell);
   }
   // Appends {cell, local, box} to v, written in place (see PushBox).
-  static void PushRouted(std::vector<Routed>& v, CellRef ref, const BoxType& box) {
+  static void PushRouted(HugeVector<Routed>& v, CellRef ref, const BoxType& box) {
     Routed& r = v.emplace_back();
     r.cell = ref.cell;
     r.update.handle = ref.local;
@@ -1291,21 +1292,21 @@ class GridCore {
   bool placed_ = false;                 // the origin is chosen (at the first inserts)
   size_t sized_for_ = 0;
   size_t live_ = 0;
-  std::vector<Object> objects_;
-  std::vector<CellRef> refs_;
+  HugeVector<Object> objects_;
+  HugeVector<CellRef> refs_;
   std::vector<std::vector<uint32_t>> free_refs_;
   std::vector<std::unique_ptr<GridCell>> cells_;
   std::vector<uint32_t> free_cells_;
   FlatMap<uint64_t, uint32_t> cell_of_;  // packed coordinate -> cell index
   std::vector<uint32_t> touched_;
-  std::vector<Routed> routed_;
+  HugeVector<Routed> routed_;
   std::vector<Shard> shards_;
-  std::vector<HandleBox<kDim, Coord>> grouped_;
+  HugeVector<HandleBox<kDim, Coord>> grouped_;
   std::vector<CellRef> routed_erases_;        // this query's erases of cell slots, as routed
-  std::vector<Routed> routed_inserts_;        // and its inserts
+  HugeVector<Routed> routed_inserts_;         // and its inserts
   std::vector<uint32_t> routed_insert_refs_;  // per routed insert: see RouteInsert's ref_at
   std::vector<uint32_t> grouped_erases_;
-  std::vector<HandleBox<kDim, Coord>> grouped_inserts_;
+  HugeVector<HandleBox<kDim, Coord>> grouped_inserts_;
   std::vector<uint32_t> grouped_insert_refs_;
   // This query allocates cell-local handles of inserts when it applies the cells (EnterCell).
   // Only while no large object exists: a large object's scans read the cells' tables, so the
@@ -1319,7 +1320,7 @@ class GridCore {
     uint32_t begin = 0, erase_begin = 0, insert_begin = 0;
     bool touched = false;
   };
-  std::vector<CellWork> cell_work_;
+  HugeVector<CellWork> cell_work_;
   // What applying a cell leaves for the fold (by position in touched_): its changes, as global
   // handle pairs in witnessed_[thread][begin, begin + count), its counters, and whether it emptied.
   struct Witnessed {

@@ -22,6 +22,7 @@
 #include <vector>
 
 #include "bp/detail/assert.h"
+#include "bp/detail/huge_alloc.h"
 
 namespace bp::detail {
 
@@ -121,7 +122,7 @@ class FlatMap {
     shift_ = cap == 0 ? 63 : 64 - std::countr_zero(cap);
   }
   void Rehash(size_t cap) {
-    std::vector<Slot> old(cap, Slot{kEmpty, V{}});
+    HugeVector<Slot> old(cap, Slot{kEmpty, V{}});
     old.swap(slots_);
     SetCapacity(cap);
     for (const Slot& s : old) {
@@ -132,7 +133,7 @@ class FlatMap {
     }
   }
 
-  std::vector<Slot> slots_;
+  HugeVector<Slot> slots_;
   size_t mask_ = 0;
   int shift_ = 63;
   size_t size_ = 0;

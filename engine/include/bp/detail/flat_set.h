@@ -24,6 +24,7 @@
 #include <vector>
 
 #include "bp/detail/assert.h"
+#include "bp/detail/huge_alloc.h"
 
 namespace bp::detail {
 
@@ -145,7 +146,7 @@ class FlatSet {
   }
 
   void Rehash(size_t cap) {
-    std::vector<U> old(cap, kEmpty);
+    HugeVector<U> old(cap, kEmpty);
     old.swap(slots_);
     SetCapacity(cap);
     size_ = 0;
@@ -158,7 +159,7 @@ class FlatSet {
     }
   }
 
-  std::vector<U> slots_;
+  HugeVector<U> slots_;
   size_t mask_ = 0;
   int shift_ = 64;
   size_t size_ = 0;

@@ -24,6 +24,7 @@
 #include <vector>
 
 #include "bp/detail/assert.h"
+#include "bp/detail/huge_alloc.h"
 
 namespace bp::detail {
 
@@ -84,12 +85,13 @@ class KeyIndex {
     return run << kRunBits | static_cast<uint32_t>((h ^ z) & ((1u << kRunBits) - 1));
   }
   /// Maps key (absent) to handle h.
-  void Insert(const Key& key, uint32_t h) {
+  void Insert(const Key& key, uint32_t h) { InsertTagged(Tag(key), h); }
+  /// Insert with the key's Tag computed by the caller.
+  void InsertTagged(uint32_t tag, uint32_t h) {
     BP_ASSERT(h != kNone);
     if ((size_ + 1) * 2 > entries_.size()) {
       Rehash(entries_.empty() ? kMinCapacity : entries_.size() * 2);
     }
-    const uint32_t tag = Tag(key);
     size_t i = Home(tag);
     while (entries_[i].handle != kNone) i = (i + 1) & mask_;
     entries_[i] = Entry{h, tag};
@@ -97,9 +99,11 @@ class KeyIndex {
   }
 
   /// Removes the mapping key -> h; false if key does not map to h.
-  bool Erase(const Key& key, uint32_t h) {
+  bool Erase(const Key& key, uint32_t h) { return EraseTagged(Tag(key), h); }
+  /// Erase with the key's Tag computed by the caller: the key itself is not read (the front end
+  /// commits a query's erases from their tags, without loading each erased slot's key first).
+  bool EraseTagged(uint32_t tag, uint32_t h) {
     if (size_ == 0) return false;
-    const uint32_t tag = Tag(key);
     size_t i = Home(tag);
     while (entries_[i].handle != h) {
       if (entries_[i].handle == kNone) return false;
@@ -157,7 +161,7 @@ class KeyIndex {
 
   void Rehash(size_t capacity) {
     BP_ASSERT(std::has_single_bit(capacity) && capacity <= (size_t{1} << 32));
-    std::vector<Entry> old(capacity);
+    HugeVector<Entry> old(capacity);
     old.swap(entries_);
     mask_ = capacity - 1;
     bits_ = std::countr_zero(capacity);
@@ -169,7 +173,7 @@ class KeyIndex {
     }
   }
 
-  std::vector<Entry> entries_;
+  HugeVector<Entry> entries_;
   size_t mask_ = 0;
   int bits_ = 0;
   size_t size_ = 0;

@@ -63,6 +63,7 @@
 #include "bp/box.h"
 #include "bp/broadphase.h"
 #include "bp/detail/assert.h"
+#include "bp/detail/huge_alloc.h"
 #include "bp/detail/key_index.h"
 #include "bp/detail/pair_tracker.h"
 #include "bp/detail/stopwatch.h"
@@ -79,8 +80,8 @@ struct HandleBox {
 
 /// Appends {h, box} to v, written in place: a braced temporary is stored piecewise and read back
 /// whole, a failed store-to-load forward that took most of the grid's routing time (perf, S3).
-template <int K, Coordinate T>
-inline void PushBox(std::vector<HandleBox<K, T>>& v, uint32_t h, const Box<K, T>& box) {
+template <int K, Coordinate T, class Alloc>
+inline void PushBox(std::vector<HandleBox<K, T>, Alloc>& v, uint32_t h, const Box<K, T>& box) {
   HandleBox<K, T>& out = v.emplace_back();
   out.handle = h;
   out.box = box;
@@ -103,39 +104,29 @@ class KeyedEngine final : public Broadphase<Core::kDim, typename Core::Coord, Ke
       : core_(options), margin_(margin > T{} ? margin : T{}) {}
 
   Status Insert(const Key& key, const BoxType& box, const ObjectOptions& options) override {
-    if (Status s = ValidateBox(box); !s.ok()) return Annotate(s, "insert");
-    const uint32_t found = Find(key);
-    if (found != kNoHandle) {
-      Slot& slot = slots_[found];
-      Settle(slot);
-      if (Present(slot)) return Status(StatusCode::kAlreadyExists, "insert: key already present");
-      if (core_.tracker().options(found) == options) {
-        // Live at the last query and erased since: erase + insert is an update (invariant 3).
-        Retire(slot);
-        Stage(updates_, found, slot, Pending::kUpdate, Keep(found, box));
-        return Status::Ok();
-      }
+    return InsertTagged(key, KeyIndex<Key>::Tag(key), box, options);
+  }
+
+  /// As Insert per item, with the look-ups of later items started early, as in UpdateMany, and
+  /// the slots of the handles the inserts will take from the free list (churn frees handles all
+  /// over the table).
+  size_t InsertMany(std::span<const typename Base::Item> items,
+                    std::span<const ObjectOptions> options = {},
+                    const typename Base::RefusedFn& refused = nullptr) override {
+    if (!options.empty() && options.size() != items.size()) {
+      return Base::InsertMany(items, options, refused);  // refuses every item, saying why
     }
-    if (free_.empty() && slots_.size() >= Core::kMaxHandles) {
-      return Status(StatusCode::kResourceExhausted,
-                    "insert: " + std::to_string(Core::kMaxHandles) + " objects are the limit");
-    }
-    if (found != kNoHandle) {
-      // New options: the old handle stays erased and the key takes a fresh one (a rekey).
-      index_.Erase(key, found);
-      rekeyed_ = true;
-    }
-    const uint32_t h = AllocHandle();
-    Slot& slot = slots_[h];
-    slot.key = key;
-    slot.live = false;
-    slot.epoch = epoch_;
-    Stage(inserts_, h, slot, Pending::kInsert, Keep(h, box));
-    index_.Insert(key, h);
-    if (options != ObjectOptions{} || core_.tracker().filtering()) {
-      insert_options_.push_back({h, options});
-    }
-    return Status::Ok();
+    static const ObjectOptions kDefault;
+    return ForEachAhead(
+        items, [](const typename Base::Item& item) -> const Key& { return item.key; }, refused,
+        [&](size_t i, uint32_t tag) {
+          constexpr size_t kFreeAhead = 8;
+          if (free_.size() > kFreeAhead) {
+            __builtin_prefetch(&slots_[free_[free_.size() - 1 - kFreeAhead]], 1);
+          }
+          return InsertTagged(items[i].key, tag, items[i].box,
+                              options.empty() ? kDefault : options[i]);
+        });
   }
 
   Status Update(const Key& key, const BoxType& box) override {
@@ -175,7 +166,15 @@ class KeyedEngine final : public Broadphase<Core::kDim, typename Core::Coord, Ke
     insert_options_.clear();
     // The staged lists are the batch, once the entries that later calls retired are gone.
     if (tombstones_ != 0) {
-      std::erase(erases_, kNoHandle);
+      // erase_tags_ follows erases_ entry for entry.
+      size_t kept = 0;
+      for (size_t i = 0; i < erases_.size(); ++i) {
+        if (erases_[i] == kNoHandle) continue;
+        erases_[kept] = erases_[i];
+        erase_tags_[kept++] = erase_tags_[i];
+      }
+      erases_.resize(kept);
+      erase_tags_.resize(kept);
       std::erase_if(updates_, [](const HandleBox<K, T>& hb) { return hb.handle == kNoHandle; });
       std::erase_if(inserts_, [](const HandleBox<K, T>& hb) { return hb.handle == kNoHandle; });
       tombstones_ = 0;
@@ -208,17 +207,17 @@ class KeyedEngine final : public Broadphase<Core::kDim, typename Core::Coord, Ke
     // Commit the erased slots and free their handles, and those of cancelled inserts (invariant
     // 2). Updated and inserted slots are not visited: the epoch ends below (see Settle). The
     // core's apply has evicted the erased slots and key-index lines since their calls: both are
-    // prefetched ahead (churn erases keys all over the table).
+    // prefetched ahead (churn erases keys all over the table). The index is reached through the
+    // tags kept at the calls, not the slots' keys: a prefetch that waits for a key loaded a few
+    // erases earlier stalled the loop on every erase (S1-1M: about 200 ns each).
     for (size_t i = 0; i < erases_.size(); ++i) {
-      if (i + 16 < erases_.size()) __builtin_prefetch(&slots_[erases_[i + 16]]);
-      if (i + 8 < erases_.size()) {
-        if (const void* line = index_.HomeLine(KeyIndex<Key>::Tag(slots_[erases_[i + 8]].key))) {
-          __builtin_prefetch(line);
-        }
+      if (i + 16 < erases_.size()) {
+        __builtin_prefetch(&slots_[erases_[i + 16]], 1);
+        if (const void* line = index_.HomeLine(erase_tags_[i + 16])) __builtin_prefetch(line, 1);
       }
       const uint32_t h = erases_[i];
       Slot& slot = slots_[h];
-      index_.Erase(slot.key, h);  // false if the key was rekeyed to another handle
+      index_.EraseTagged(erase_tags_[i], h);  // false if the key was rekeyed to another handle
       slot.live = false;
       slot.pending = Pending::kNone;
       free_.push_back(h);
@@ -229,6 +228,7 @@ class KeyedEngine final : public Broadphase<Core::kDim, typename Core::Coord, Ke
     last_updates_ = updates_.size();
     last_inserts_ = inserts_.size();
     erases_.clear();
+    erase_tags_.clear();
     updates_.clear();
     inserts_.clear();
     NextEpoch();
@@ -413,7 +413,7 @@ class KeyedEngine final : public Broadphase<Core::kDim, typename Core::Coord, Ke
 
   // Appends h's pending call of kind p, with box, to list and names the entry in the slot
   // (settled, with nothing pending).
-  void Stage(std::vector<HandleBox<K, T>>& list, uint32_t h, Slot& slot, Pending p,
+  void Stage(HugeVector<HandleBox<K, T>>& list, uint32_t h, Slot& slot, Pending p,
              const BoxType& box) {
     slot.pending = p;
     slot.stage = static_cast<uint32_t>(list.size());
@@ -501,11 +501,51 @@ class KeyedEngine final : public Broadphase<Core::kDim, typename Core::Coord, Ke
       slot.pending = Pending::kErase;
       slot.stage = static_cast<uint32_t>(erases_.size());
       erases_.push_back(h);
+      erase_tags_.push_back(tag);
     } else {
       // Inserted and erased between two queries: nothing reaches the core, and the handle is
       // freed after the query (invariant 2).
       index_.Erase(key, h);
       cancelled_.push_back(h);
+    }
+    return Status::Ok();
+  }
+
+  // Insert, with key's KeyIndex tag computed by the caller.
+  Status InsertTagged(const Key& key, uint32_t tag, const BoxType& box,
+                      const ObjectOptions& options) {
+    if (Status s = ValidateBox(box); !s.ok()) return Annotate(s, "insert");
+    const uint32_t found =
+        index_.Find(key, tag, [this](uint32_t x) -> const Key& { return slots_[x].key; });
+    if (found != kNoHandle) {
+      Slot& slot = slots_[found];
+      Settle(slot);
+      if (Present(slot)) return Status(StatusCode::kAlreadyExists, "insert: key already present");
+      if (core_.tracker().options(found) == options) {
+        // Live at the last query and erased since: erase + insert is an update (invariant 3).
+        Retire(slot);
+        Stage(updates_, found, slot, Pending::kUpdate, Keep(found, box));
+        return Status::Ok();
+      }
+    }
+    if (free_.empty() && slots_.size() >= Core::kMaxHandles) {
+      return Status(StatusCode::kResourceExhausted,
+                    "insert: " + std::to_string(Core::kMaxHandles) + " objects are the limit");
+    }
+    if (found != kNoHandle) {
+      // New options: the old handle stays erased and the key takes a fresh one (a rekey).
+      index_.EraseTagged(tag, found);
+      rekeyed_ = true;
+    }
+    const uint32_t h = AllocHandle();
+    Slot& slot = slots_[h];
+    slot.key = key;
+    slot.live = false;
+    slot.epoch = epoch_;
+    Stage(inserts_, h, slot, Pending::kInsert, Keep(h, box));
+    index_.InsertTagged(tag, h);
+    if (options != ObjectOptions{} || core_.tracker().filtering()) {
+      insert_options_.push_back({h, options});
     }
     return Status::Ok();
   }
@@ -620,15 +660,16 @@ class KeyedEngine final : public Broadphase<Core::kDim, typename Core::Coord, Ke
   size_t last_erases_ = 0, last_updates_ = 0, last_inserts_ = 0;  // the last query's batch
   double prepare_ms_ = 0, core_ms_ = 0, events_ms_ = 0;           // the last query's phases (Stats)
   uint32_t epoch_ = 1;  // 1 + queries so far, wrapping past 0 (NextEpoch); a new slot's 0 is stale
-  std::vector<Slot> slots_;
-  std::vector<BoxType> fat_;  // with a margin: each handle's fat box (invariant 4)
-  KeyIndex<Key> index_;       // key -> handle (see invariant 1)
+  HugeVector<Slot> slots_;
+  HugeVector<BoxType> fat_;  // with a margin: each handle's fat box (invariant 4)
+  KeyIndex<Key> index_;      // key -> handle (see invariant 1)
   std::vector<uint32_t> free_;
   std::vector<uint32_t> cancelled_;  // handles inserted and erased since the last query
   // The batch being staged: the pending calls by kind (kNoHandle: retired by a later call).
-  std::vector<uint32_t> erases_;
-  std::vector<HandleBox<K, T>> updates_;
-  std::vector<HandleBox<K, T>> inserts_;
+  HugeVector<uint32_t> erases_;
+  HugeVector<uint32_t> erase_tags_;  // KeyIndex tag of each erases_ entry's key
+  HugeVector<HandleBox<K, T>> updates_;
+  HugeVector<HandleBox<K, T>> inserts_;
   size_t tombstones_ = 0;
   struct Drained {
     uint32_t a, b;
