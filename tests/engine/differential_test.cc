@@ -284,7 +284,8 @@ class DifferentialCore : public ::testing::Test {
         key = RandomLiveKey();
       } else if (pick == 1 && !items.empty()) {
         key = items.back().key;
-      } else if (pick == 2) {
+      } else if (pick == 2) {  // an invalid box, under a new or a live key
+        if (!model_.boxes().empty() && Below(2) == 0) key = RandomLiveKey();
         box.lo[0] = static_cast<T>(box.hi[0] + 1);
       } else if (pick == 3 && !erased_keys_.empty()) {
         key = erased_keys_[Below(erased_keys_.size())];

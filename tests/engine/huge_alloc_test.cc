@@ -20,10 +20,11 @@ bool HugeAligned(const void* p) { return reinterpret_cast<uintptr_t>(p) % kHugeP
 TEST(HugeAllocatorTest, LargeArraysAreMappedAlignedSmallOnesAreNot) {
   const size_t large = kHugeFrom / sizeof(uint64_t) + 5;  // just above the threshold
   HugeVector<uint64_t> v(large);
-  EXPECT_EQ(HugeAligned(v.data()), HugeMapped(large * sizeof(uint64_t)));
+  if (HugeMapped(large * sizeof(uint64_t))) {
+    EXPECT_TRUE(HugeAligned(v.data()));
+  }
 #if defined(__linux__) && !defined(BP_HUGE_ALLOC_OFF)
   EXPECT_TRUE(HugeMapped(large * sizeof(uint64_t)));
-  EXPECT_TRUE(HugeAligned(v.data()));
 #endif
   EXPECT_FALSE(HugeMapped(kHugeFrom - 1));
   HugeVector<uint64_t> small(16);

@@ -13,14 +13,16 @@
 //
 // Cost: a mapped array's length is rounded up to 2 MiB, and a huge page is backed whole once
 // touched, so each mapped array may hold up to 2 MiB more than it uses.
-// Builds with AddressSanitizer keep std::allocator throughout, so its heap checks still see
-// every array.
+// Builds with a sanitizer (address, memory, thread) keep std::allocator throughout, so its heap
+// checks still see every array. So a program must not mix translation units built with and
+// without a sanitizer around one engine (an array mapped by one would be freed by the other).
 //
 // Thread safety: stateless; allocate and deallocate may be called from any thread.
 #pragma once
 
 #include <cstddef>
 #include <cstdint>
+#include <limits>
 #include <memory>
 #include <new>
 #include <vector>
@@ -29,10 +31,11 @@
 #include <sys/mman.h>
 #endif
 
-#if defined(__SANITIZE_ADDRESS__)
+#if defined(__SANITIZE_ADDRESS__) || defined(__SANITIZE_THREAD__)
 #define BP_HUGE_ALLOC_OFF 1
 #elif defined(__has_feature)
-#if __has_feature(address_sanitizer) || __has_feature(memory_sanitizer)
+#if __has_feature(address_sanitizer) || __has_feature(memory_sanitizer) || \
+    __has_feature(thread_sanitizer)
 #define BP_HUGE_ALLOC_OFF 1
 #endif
 #endif
@@ -81,21 +84,19 @@ class HugeAllocator {
   HugeAllocator(const HugeAllocator<U>&) noexcept {}  // NOLINT(google-explicit-constructor)
 
   T* allocate(size_t n) {
-    if (n > std::allocator_traits<std::allocator<T>>::max_size(std::allocator<T>())) {
+    if (n > static_cast<size_t>(std::numeric_limits<std::ptrdiff_t>::max()) / sizeof(T)) {
       throw std::bad_array_new_length();
     }
-    const size_t bytes = n * sizeof(T);
 #if defined(__linux__) && !defined(BP_HUGE_ALLOC_OFF)
     static_assert(alignof(T) <= kHugePage);
-    if (HugeMapped(bytes)) return static_cast<T*>(MapHuge(Rounded(bytes)));
+    if (HugeMapped(n * sizeof(T))) return static_cast<T*>(MapHuge(Rounded(n * sizeof(T))));
 #endif
     return std::allocator<T>().allocate(n);
   }
   void deallocate(T* p, size_t n) noexcept {
-    const size_t bytes = n * sizeof(T);
 #if defined(__linux__) && !defined(BP_HUGE_ALLOC_OFF)
-    if (HugeMapped(bytes)) {
-      UnmapHuge(p, Rounded(bytes));
+    if (HugeMapped(n * sizeof(T))) {
+      UnmapHuge(p, Rounded(n * sizeof(T)));
       return;
     }
 #endif

@@ -166,15 +166,7 @@ class KeyedEngine final : public Broadphase<Core::kDim, typename Core::Coord, Ke
     insert_options_.clear();
     // The staged lists are the batch, once the entries that later calls retired are gone.
     if (tombstones_ != 0) {
-      // erase_tags_ follows erases_ entry for entry.
-      size_t kept = 0;
-      for (size_t i = 0; i < erases_.size(); ++i) {
-        if (erases_[i] == kNoHandle) continue;
-        erases_[kept] = erases_[i];
-        erase_tags_[kept++] = erase_tags_[i];
-      }
-      erases_.resize(kept);
-      erase_tags_.resize(kept);
+      std::erase(erases_, kNoHandle);
       std::erase_if(updates_, [](const HandleBox<K, T>& hb) { return hb.handle == kNoHandle; });
       std::erase_if(inserts_, [](const HandleBox<K, T>& hb) { return hb.handle == kNoHandle; });
       tombstones_ = 0;
@@ -207,17 +199,17 @@ class KeyedEngine final : public Broadphase<Core::kDim, typename Core::Coord, Ke
     // Commit the erased slots and free their handles, and those of cancelled inserts (invariant
     // 2). Updated and inserted slots are not visited: the epoch ends below (see Settle). The
     // core's apply has evicted the erased slots and key-index lines since their calls: both are
-    // prefetched ahead (churn erases keys all over the table). The index is reached through the
-    // tags kept at the calls, not the slots' keys: a prefetch that waits for a key loaded a few
-    // erases earlier stalled the loop on every erase (S1-1M: about 200 ns each).
+    // prefetched ahead (churn erases keys all over the table).
     for (size_t i = 0; i < erases_.size(); ++i) {
-      if (i + 16 < erases_.size()) {
-        __builtin_prefetch(&slots_[erases_[i + 16]], 1);
-        if (const void* line = index_.HomeLine(erase_tags_[i + 16])) __builtin_prefetch(line, 1);
+      if (i + 16 < erases_.size()) __builtin_prefetch(&slots_[erases_[i + 16]]);
+      if (i + 8 < erases_.size()) {
+        if (const void* line = index_.HomeLine(KeyIndex<Key>::Tag(slots_[erases_[i + 8]].key))) {
+          __builtin_prefetch(line);
+        }
       }
       const uint32_t h = erases_[i];
       Slot& slot = slots_[h];
-      index_.EraseTagged(erase_tags_[i], h);  // false if the key was rekeyed to another handle
+      index_.Erase(slot.key, h);  // false if the key was rekeyed to another handle
       slot.live = false;
       slot.pending = Pending::kNone;
       free_.push_back(h);
@@ -228,7 +220,6 @@ class KeyedEngine final : public Broadphase<Core::kDim, typename Core::Coord, Ke
     last_updates_ = updates_.size();
     last_inserts_ = inserts_.size();
     erases_.clear();
-    erase_tags_.clear();
     updates_.clear();
     inserts_.clear();
     NextEpoch();
@@ -501,11 +492,10 @@ class KeyedEngine final : public Broadphase<Core::kDim, typename Core::Coord, Ke
       slot.pending = Pending::kErase;
       slot.stage = static_cast<uint32_t>(erases_.size());
       erases_.push_back(h);
-      erase_tags_.push_back(tag);
     } else {
       // Inserted and erased between two queries: nothing reaches the core, and the handle is
       // freed after the query (invariant 2).
-      index_.Erase(key, h);
+      index_.EraseTagged(tag, h);
       cancelled_.push_back(h);
     }
     return Status::Ok();
@@ -667,7 +657,6 @@ class KeyedEngine final : public Broadphase<Core::kDim, typename Core::Coord, Ke
   std::vector<uint32_t> cancelled_;  // handles inserted and erased since the last query
   // The batch being staged: the pending calls by kind (kNoHandle: retired by a later call).
   HugeVector<uint32_t> erases_;
-  HugeVector<uint32_t> erase_tags_;  // KeyIndex tag of each erases_ entry's key
   HugeVector<HandleBox<K, T>> updates_;
   HugeVector<HandleBox<K, T>> inserts_;
   size_t tombstones_ = 0;
