@@ -114,14 +114,9 @@ class Broadphase {
       }
       return items.size();
     }
-    size_t count = 0;
-    for (size_t i = 0; i < items.size(); ++i) {
-      Status s = Insert(items[i].key, items[i].box, options.empty() ? ObjectOptions{} : options[i]);
-      if (s.ok()) continue;
-      ++count;
-      if (refused) refused(i, s);
-    }
-    return count;
+    return CallEach(items.size(), refused, [&](size_t i) {
+      return Insert(items[i].key, items[i].box, options.empty() ? ObjectOptions{} : options[i]);
+    });
   }
   /// Buffers a new box for key. NotFound if key is not live; InvalidArgument if the box is invalid.
   virtual Status Update(const Key& key, const BoxType& box) = 0;
@@ -132,14 +127,8 @@ class Broadphase {
   /// engines looks up the keys and slots of the items ahead while it updates the current one,
   /// which a loop of Update calls cannot do. The daemon and bpbench pass their updates here.
   virtual size_t UpdateMany(std::span<const Item> items, const RefusedFn& refused = nullptr) {
-    size_t count = 0;
-    for (size_t i = 0; i < items.size(); ++i) {
-      Status s = Update(items[i].key, items[i].box);
-      if (s.ok()) continue;
-      ++count;
-      if (refused) refused(i, s);
-    }
-    return count;
+    return CallEach(items.size(), refused,
+                    [&](size_t i) { return Update(items[i].key, items[i].box); });
   }
   /// Buffers the erasure of key. NotFound if key is not live.
   virtual Status Erase(const Key& key) = 0;
@@ -148,14 +137,7 @@ class Broadphase {
   /// return; the others are erased. Returns the number refused. Engines may override it to
   /// overlap the look-ups of many keys, as UpdateMany does.
   virtual size_t EraseMany(std::span<const Key> keys, const RefusedFn& refused = nullptr) {
-    size_t count = 0;
-    for (size_t i = 0; i < keys.size(); ++i) {
-      Status s = Erase(keys[i]);
-      if (s.ok()) continue;
-      ++count;
-      if (refused) refused(i, s);
-    }
-    return count;
+    return CallEach(keys.size(), refused, [&](size_t i) { return Erase(keys[i]); });
   }
   /// Applies all buffered calls and reports the overlap changes to sink in canonical order.
   virtual void Query(EventSink<Key>& sink) = 0;
@@ -173,6 +155,21 @@ class Broadphase {
   virtual Status Validate() const = 0;
   /// A short name of the algorithm, e.g. "segmented_sap".
   virtual std::string Name() const = 0;
+
+ protected:
+  /// call(i) for i in [0, n), in order; each refused i is passed to refused (when set) with its
+  /// Status. Returns the number refused (the loop of InsertMany, UpdateMany and EraseMany).
+  template <class Call>
+  static size_t CallEach(size_t n, const RefusedFn& refused, Call&& call) {
+    size_t count = 0;
+    for (size_t i = 0; i < n; ++i) {
+      const Status s = call(i);
+      if (s.ok()) continue;
+      ++count;
+      if (refused) refused(i, s);
+    }
+    return count;
+  }
 };
 
 }  // namespace bp

@@ -100,8 +100,7 @@ class KeyIndex {
 
   /// Removes the mapping key -> h; false if key does not map to h.
   bool Erase(const Key& key, uint32_t h) { return EraseTagged(Tag(key), h); }
-  /// Erase with the key's Tag computed by the caller: the key itself is not read (the front end
-  /// commits a query's erases from their tags, without loading each erased slot's key first).
+  /// Erase with the key's Tag computed by the caller.
   bool EraseTagged(uint32_t tag, uint32_t h) {
     if (size_ == 0) return false;
     size_t i = Home(tag);
