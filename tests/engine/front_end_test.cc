@@ -55,6 +55,74 @@ using OptionEngines = ::testing::Types<
     EngineConfig<3, double, MakeGrid<CellKind::kDense, 10, 4>>>;
 TYPED_TEST_SUITE(OptionsTest, OptionEngines);
 
+// A refusal callback may call the engine, and a batch then sees the key index as the callback
+// left it. Here the callback rekeys key 100 (its erase or update staged earlier in the batch,
+// then reinserted with other options: a fresh handle) after the batch looked ahead at its last
+// item, 100 again: that item must reach the new handle, not the one its look-ahead found
+// (KeyedEngine::Lookup's hint, dropped once the index changed).
+TYPED_TEST(OptionsTest, BatchSeesTheIndexItsRefusalCallbackChanged) {
+  constexpr int K = TypeParam::K;
+  using T = typename TypeParam::T;
+  const std::vector<uint64_t> keys = {100, 1, 2, 3, 999, 5, 6, 7, 0, 100};
+  const std::map<size_t, StatusCode> only_999 = {{4, StatusCode::kNotFound}};
+  auto fill = [](Broadphase<K, T>& engine) {
+    for (uint64_t k = 0; k < 8; ++k) {
+      const auto lo = static_cast<T>(10 * k);
+      ASSERT_TRUE(engine.Insert(k, Cube<K, T>(lo, static_cast<T>(lo + 1))).ok());
+    }
+    ASSERT_TRUE(engine.Insert(100, Cube<K, T>(0, 4)).ok());
+  };
+  auto objects = [](const Broadphase<K, T>& engine) {
+    std::set<uint64_t> out;
+    engine.ForEachObject([&](const uint64_t& key) { out.insert(key); });
+    return out;
+  };
+  RecordingSink<uint64_t> sink;
+  {
+    auto engine = TypeParam::Create();
+    fill(*engine);
+    engine->Query(sink);
+    std::map<size_t, StatusCode> refused;
+    const size_t count = engine->EraseMany(keys, [&](size_t i, const Status& s) {
+      refused.emplace(i, s.code());
+      if (i == 4) {
+        EXPECT_TRUE(engine->Insert(100, Cube<K, T>(0, 4), ObjectOptions{.category = 2}).ok());
+      }
+    });
+    EXPECT_EQ(count, 1u);
+    EXPECT_EQ(refused, only_999);
+    engine->Query(sink);
+    EXPECT_EQ(objects(*engine), (std::set<uint64_t>{4}));
+  }
+  {
+    auto engine = TypeParam::Create();
+    fill(*engine);
+    engine->Query(sink);
+    std::vector<typename Broadphase<K, T>::Item> items;
+    for (uint64_t key : keys) {
+      const auto lo = static_cast<T>(key < 8 ? 10 * key : 0);  // the others stay where they are
+      items.push_back({key, Cube<K, T>(lo, static_cast<T>(lo + 1))});
+    }
+    items.back().box = Cube<K, T>(0, 12);  // 100's last box: it meets 0 (0..1) and 1 (10..11)
+    std::map<size_t, StatusCode> refused;
+    const size_t count = engine->UpdateMany(items, [&](size_t i, const Status& s) {
+      refused.emplace(i, s.code());
+      if (i == 4) {
+        EXPECT_TRUE(engine->Erase(100).ok());
+        EXPECT_TRUE(engine->Insert(100, Cube<K, T>(0, 4), ObjectOptions{.category = 2}).ok());
+      }
+    });
+    EXPECT_EQ(count, 1u);
+    EXPECT_EQ(refused, only_999);
+    sink.Clear();
+    engine->Query(sink);
+    EXPECT_EQ(objects(*engine).count(100), 1u);
+    std::set<Pair> pairs;
+    engine->ForEachOverlap([&](const uint64_t& a, const uint64_t& b) { pairs.insert({a, b}); });
+    EXPECT_TRUE(pairs.count({1, 100}) == 1) << "100 kept a box other than its last";
+  }
+}
+
 TYPED_TEST(OptionsTest, ReinsertWithOtherOptionsReportsOnlyRealChanges) {
   constexpr int K = TypeParam::K;
   using T = typename TypeParam::T;

@@ -199,6 +199,9 @@ class GridCore {
   static constexpr size_t kCellRun = 32;
   // How far ahead of the cell being applied its successors' records and arrays are prefetched.
   static constexpr size_t kRecordAhead = 4, kArraysAhead = 2;
+  // Cells whose work entries (CellWork) fill about 256 KiB, half an L2 of this project's Zen 3:
+  // beyond, routing prefetches them.
+  static constexpr size_t kWorkInCache = 8192;
   using Space = CellSpace<kDim>;
   using CellCoord = typename Space::Coord;
   static constexpr int64_t kLimit = Space::kLimit;
@@ -665,7 +668,24 @@ class GridCore {
       routed_.reserve(n);
       for (size_t i = 0; i < n; ++i) {
         BP_GRID_PREFETCH_UPDATE(updates, i, n);
-        UpdateObject(updates[i].handle, updates[i].box);
+        if (i + 4 < n && cell_work_.size() > kWorkInCache) {
+          // A third stage, when the work table outgrows the L2: the work entry of the object's
+          // first cell, which routing counts in (S1-1M's routing 0.91; on S3, whose table fits,
+          // the loads cost 5%).
+          const Object& ahead = objects_[updates[i + 4].handle];
+          if (ahead.nrefs != 0) Prefetch(&cell_work_[refs_[ahead.refs].cell]);
+        }
+        const auto& [h, box] = updates[i];
+        Object& o = objects_[h];
+        BP_ASSERT(o.state == State::kLive);
+        if (large_count_ == 0 && StaysInCells(o, box)) {
+          // Most updates: the box, and one routed update per cell, as UpdateObject would do
+          // (in about half its instructions: no new range, cell count or large-object checks).
+          o.box = box;
+          for (uint32_t k = 0; k < o.nrefs; ++k) RouteUpdate(refs_[o.refs + k], box);
+          continue;
+        }
+        UpdateObject(h, box);
       }
       return;
     }
@@ -702,11 +722,7 @@ class GridCore {
       const auto& [h, box] = updates[i];
       Object& o = objects_[h];
       BP_ASSERT(o.state == State::kLive);
-      bool same_range = o.large == kNone;
-      for (size_t a = 0; a < kAxes && same_range; ++a) {
-        same_range = CellOf(box.lo[a], a) == o.lo[a] && CellOf(box.hi[a], a) == o.hi[a];
-      }
-      if (!same_range) {
+      if (!StaysInCells(o, box)) {
         sh.deferred.push_back(static_cast<uint32_t>(i));
         continue;
       }
@@ -720,6 +736,16 @@ class GridCore {
   }
 
 #undef BP_GRID_PREFETCH_UPDATE
+
+  // True iff small object o's cell range is the same for box (its update touches no cell,
+  // handle or reference): one axis bound at a time, stopping at the first that differs.
+  bool StaysInCells(const Object& o, const BoxType& box) const {
+    bool same_range = o.large == kNone;
+    for (size_t a = 0; a < kAxes && same_range; ++a) {
+      same_range = CellOf(box.lo[a], a) == o.lo[a] && CellOf(box.hi[a], a) == o.hi[a];
+    }
+    return same_range;
+  }
 
   // --- cells -----------------------------------------------------------------------------------
 
@@ -827,12 +853,12 @@ class GridCore {
     grouped_insert_refs_.resize(insert_offset);
     // The begin fields serve as write cursors, and are set back after.
     for (Shard& sh : shards_) {
-      for (const Routed& r : sh.routed) grouped_[cell_work_[r.cell].begin++] = r.update;
+      ScatterRouted(sh.routed);
       for (uint32_t idx : sh.touched) sh.counts[idx] = 0;
       sh.routed.clear();
       sh.touched.clear();
     }
-    for (const Routed& r : routed_) grouped_[cell_work_[r.cell].begin++] = r.update;
+    ScatterRouted(routed_);
     for (const CellRef& r : routed_erases_)
       grouped_erases_[cell_work_[r.cell].erase_begin++] = r.local;
     for (size_t k = 0; k < routed_inserts_.size(); ++k) {
@@ -851,6 +877,21 @@ class GridCore {
     routed_erases_.clear();
     routed_inserts_.clear();
     routed_insert_refs_.clear();
+  }
+
+  // Writes each of v's updates at its cell's write cursor in grouped_ (the cell's begin field,
+  // advanced). Cells and cursors lie all over cell_work_ and grouped_: the cursor's line is
+  // prefetched 16 updates ahead, then the line the cursor points at 8 ahead, for writing.
+  // Serial: with the shards' updates scattered by two pool threads (by shard, or by halves of
+  // grouped_) this took as long on S1-1M as on one thread, or longer (2026-11-26, session 37).
+  void ScatterRouted(const HugeVector<Routed>& v) {
+    const size_t n = v.size();
+    const Routed* r = v.data();
+    for (size_t k = 0; k < n; ++k) {
+      if (k + 16 < n) __builtin_prefetch(&cell_work_[r[k + 16].cell]);
+      if (k + 8 < n) __builtin_prefetch(grouped_.data() + cell_work_[r[k + 8].cell].begin, 1);
+      grouped_[cell_work_[r[k].cell].begin++] = r[k].update;
+    }
   }
 
   // Applies every touched cell's buffered operations (in parallel: cells share nothing), then

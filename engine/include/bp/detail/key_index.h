@@ -84,6 +84,10 @@ class KeyIndex {
     const uint32_t run = static_cast<uint32_t>(z >> (64 - (32 - kRunBits)));
     return run << kRunBits | static_cast<uint32_t>((h ^ z) & ((1u << kRunBits) - 1));
   }
+  /// Changes with every insert and erase (and so every rehash): a Guess taken at one version
+  /// still names the same entry while the version is the same.
+  uint64_t version() const { return version_; }
+
   /// Maps key (absent) to handle h.
   void Insert(const Key& key, uint32_t h) { InsertTagged(Tag(key), h); }
   /// Insert with the key's Tag computed by the caller.
@@ -96,6 +100,7 @@ class KeyIndex {
     while (entries_[i].handle != kNone) i = (i + 1) & mask_;
     entries_[i] = Entry{h, tag};
     ++size_;
+    ++version_;
   }
 
   /// Removes the mapping key -> h; false if key does not map to h.
@@ -119,6 +124,7 @@ class KeyIndex {
     }
     entries_[hole].handle = kNone;
     --size_;
+    ++version_;
     if (entries_.size() > kMinCapacity && size_ * 8 < entries_.size()) {
       Rehash(entries_.size() / 2);
     }
@@ -176,6 +182,7 @@ class KeyIndex {
   size_t mask_ = 0;
   int bits_ = 0;
   size_t size_ = 0;
+  uint64_t version_ = 0;
 };
 
 }  // namespace bp::detail
