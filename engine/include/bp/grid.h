@@ -200,7 +200,7 @@ class GridCore {
   // How far ahead of the cell being applied its successors' records and arrays are prefetched.
   static constexpr size_t kRecordAhead = 4, kArraysAhead = 2;
   // Cells whose work entries (CellWork) fill about 256 KiB, half an L2 of this project's Zen 3:
-  // beyond, routing prefetches them.
+  // beyond, routing and grouping prefetch them.
   static constexpr size_t kWorkInCache = 8192;
   using Space = CellSpace<kDim>;
   using CellCoord = typename Space::Coord;
@@ -880,13 +880,19 @@ class GridCore {
   }
 
   // Writes each of v's updates at its cell's write cursor in grouped_ (the cell's begin field,
-  // advanced). Cells and cursors lie all over cell_work_ and grouped_: the cursor's line is
-  // prefetched 16 updates ahead, then the line the cursor points at 8 ahead, for writing.
-  // Serial: with the shards' updates scattered by two pool threads (by shard, or by halves of
-  // grouped_) this took as long on S1-1M as on one thread, or longer (2026-11-26, session 37).
+  // advanced). Above kWorkInCache cells, cells and cursors lie all over a work table larger
+  // than the L2: the cursor's line is prefetched 16 updates ahead, then the line the cursor
+  // points at 8 ahead, for writing (below, the prefetches measured a cost: S1-200k's cells
+  // phase 1.06). Serial: with the shards' updates scattered by two pool threads (by shard, or
+  // by halves of grouped_) this took as long on S1-1M as on one thread, or longer (2026-11-26,
+  // session 37).
   void ScatterRouted(const HugeVector<Routed>& v) {
     const size_t n = v.size();
     const Routed* r = v.data();
+    if (cell_work_.size() <= kWorkInCache) {
+      for (size_t k = 0; k < n; ++k) grouped_[cell_work_[r[k].cell].begin++] = r[k].update;
+      return;
+    }
     for (size_t k = 0; k < n; ++k) {
       if (k + 16 < n) __builtin_prefetch(&cell_work_[r[k + 16].cell]);
       if (k + 8 < n) __builtin_prefetch(grouped_.data() + cell_work_[r[k + 8].cell].begin, 1);
