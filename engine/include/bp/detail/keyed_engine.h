@@ -463,7 +463,7 @@ class KeyedEngine final : public Broadphase<Core::kDim, typename Core::Coord, Ke
   // Each key's tag is computed once, kAhead items ahead, and kept in a ring until its item's
   // turn. The handle found for the prefetch is kept too, and passed as the item's hint while
   // the index has not changed since (else kNoHandle): see Lookup. On S1-200k that saved a
-  // second probe of the key's run per update, about 4% of a frame's instructions.
+  // second probe of the key's run per update: 0.2 million instructions per frame net (0.8%).
   // apply returns the item's Status; a refused item is passed to refused (when set) with its
   // index. Returns the number refused.
   template <class Item, class KeyOf, class Apply>
