@@ -51,6 +51,9 @@ struct WatchOptions {
   /// Keep the overlap set from a snapshot and the events (OverlapView) and check it against
   /// the daemon's overlap count after every frame; exit 1 on any difference.
   bool exact = false;
+  /// With a path: one CSV line per frame (frame, the scene's stamp, the daemon's publication of
+  /// the last part, arrival here; nanoseconds of CLOCK_REALTIME), for latency analysis.
+  std::string latency_log;
 };
 int Watch(const Common& common, const WatchOptions& options);
 

@@ -63,6 +63,9 @@ int main(int argc, char** argv) {
   watch_cmd->add_option("--seconds", watch.seconds, "stop after this many seconds");
   watch_cmd->add_option("--warmup", watch.warmup_s, "seconds left out of the final totals");
   watch_cmd->add_flag("--json", watch.json, "with --stats: JSON lines");
+  watch_cmd->add_option("--latency-log", watch.latency_log,
+                        "write one CSV line per frame: frame, sent, published and arrival times "
+                        "(ns)");
   watch_cmd->add_flag("--exact", watch.exact,
                       "keep the overlap set (snapshot + events) and check it against the "
                       "daemon's count after every frame; exit 1 on a difference");

@@ -1,5 +1,8 @@
 // bpctl watch (events or live statistics) and bpctl status (daemon health).
 #include <algorithm>
+#include <cerrno>
+#include <cstring>
+#include <memory>
 #include <vector>
 
 #include "common.h"
@@ -30,6 +33,19 @@ const char* HealthName(wire::Health h) {
 }  // namespace
 
 int Watch(const Common& common, const WatchOptions& options) {
+  struct CloseFile {
+    void operator()(std::FILE* f) const { (void)std::fclose(f); }
+  };
+  std::unique_ptr<std::FILE, CloseFile> log_file;  // closed on every return
+  if (!options.latency_log.empty()) {
+    log_file.reset(std::fopen(options.latency_log.c_str(), "w"));
+    if (!log_file) {
+      std::fprintf(stderr, "bpctl watch: cannot write --latency-log %s: %s\n",
+                   options.latency_log.c_str(), std::strerror(errno));
+      return 1;
+    }
+    std::fprintf(log_file.get(), "frame,sent_ns,published_ns,arrived_ns\n");
+  }
   auto connection = Connect(common);
   if (!connection) return 1;
   std::unique_ptr<client::EventSubscriber> sub;
@@ -65,6 +81,11 @@ int Watch(const Common& common, const WatchOptions& options) {
   std::vector<double> latency_ms;
   // Totals after the warm-up: frames, the span they arrived in, every latency.
   std::vector<double> all_latency_ms;
+  // The two legs of each latency: the scene's stamp to the daemon's publication of the frame's
+  // last part (upload, ingest, query, encoding), and that publication to arrival here (DDS
+  // delivery, decoding, this process's scheduling). Both clocks are CLOCK_REALTIME: across
+  // machines the legs carry the clocks' offset, their sum does not.
+  std::vector<double> all_to_publish_ms, all_delivery_ms;
   uint64_t total_frames = 0, total_events = 0;
   std::chrono::steady_clock::time_point first_frame{}, last_frame{};
   std::vector<wire::EventBatch> batches;
@@ -132,6 +153,18 @@ int Watch(const Common& common, const WatchOptions& options) {
         last_frame = now;
         ++total_frames;
         if (latency >= 0) all_latency_ms.push_back(latency);
+        const uint64_t published = b.published_time_ns(), sent = b.source_sent_time_ns();
+        if (sent != 0 && published >= sent && now_ns >= published) {
+          all_to_publish_ms.push_back(static_cast<double>(published - sent) / 1e6);
+          all_delivery_ms.push_back(static_cast<double>(now_ns - published) / 1e6);
+        }
+      }
+      if (log_file) {
+        std::fprintf(log_file.get(), "%llu,%llu,%llu,%llu\n",
+                     static_cast<unsigned long long>(b.frame()),
+                     static_cast<unsigned long long>(b.source_sent_time_ns()),
+                     static_cast<unsigned long long>(b.published_time_ns()),
+                     static_cast<unsigned long long>(now_ns));
       }
     }
     if (!options.stats) {
@@ -164,6 +197,10 @@ int Watch(const Common& common, const WatchOptions& options) {
     window_frames = window_collides = window_uncollides = 0;
     latency_ms.clear();
   }
+  if (log_file && std::fclose(log_file.release()) != 0) {
+    std::fprintf(stderr, "bpctl watch: writing --latency-log %s: %s\n", options.latency_log.c_str(),
+                 std::strerror(errno));
+  }
   if (options.stats) {
     // Sustained rate: frames after the first counted one over the time they took to arrive.
     const double span = std::chrono::duration<double>(last_frame - first_frame).count();
@@ -172,20 +209,26 @@ int Watch(const Common& common, const WatchOptions& options) {
     std::vector<double> sorted = all_latency_ms;
     const double p50 = Percentile(sorted, 0.5), p99 = Percentile(sorted, 0.99);
     const double max = sorted.empty() ? 0 : *std::max_element(sorted.begin(), sorted.end());
+    const double up50 = Percentile(all_to_publish_ms, 0.5),
+                 up99 = Percentile(all_to_publish_ms, 0.99);
+    const double down50 = Percentile(all_delivery_ms, 0.5),
+                 down99 = Percentile(all_delivery_ms, 0.99);
     if (options.json) {
       std::printf(
           "{\"total\": true, \"frames\": %llu, \"seconds\": %.3f, \"frames_per_s\": "
           "%.2f, \"events\": %llu, \"latency_ms_p50\": %.3f, \"latency_ms_p99\": %.3f, "
-          "\"latency_ms_max\": %.3f, \"gaps\": %llu}\n",
+          "\"latency_ms_max\": %.3f, \"to_publish_ms_p50\": %.3f, \"to_publish_ms_p99\": %.3f, "
+          "\"delivery_ms_p50\": %.3f, \"delivery_ms_p99\": %.3f, \"gaps\": %llu}\n",
           static_cast<unsigned long long>(total_frames), span, rate,
-          static_cast<unsigned long long>(total_events), p50, p99, max,
+          static_cast<unsigned long long>(total_events), p50, p99, max, up50, up99, down50, down99,
           static_cast<unsigned long long>(sub->gaps()));
     } else {
       std::printf(
           "total after %.0f s warm-up: %llu frames in %.2f s (%.1f frames/s), %llu "
-          "events, update->event p50 %.2f ms p99 %.2f ms max %.2f ms, gaps %llu\n",
+          "events, update->event p50 %.2f ms p99 %.2f ms max %.2f ms (to the daemon's "
+          "publication p50 %.2f p99 %.2f, delivery p50 %.2f p99 %.2f), gaps %llu\n",
           options.warmup_s, static_cast<unsigned long long>(total_frames), span, rate,
-          static_cast<unsigned long long>(total_events), p50, p99, max,
+          static_cast<unsigned long long>(total_events), p50, p99, max, up50, up99, down50, down99,
           static_cast<unsigned long long>(sub->gaps()));
     }
     std::fflush(stdout);

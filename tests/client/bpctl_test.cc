@@ -1,11 +1,16 @@
 // bpctl's commands in-process against the daemon on loopback DDS (domain BP_TEST_DOMAIN, a
 // partition per test): scene + record, replay into a fresh daemon gives the same events, the
 // recording through another engine gives the same events, and check agrees with both.
+#include <cinttypes>
+#include <cstdio>
 #include <filesystem>
+#include <fstream>
+#include <string>
 #include <thread>
 
 #include "../service/service_test_support.h"
 #include "commands.h"
+#include <unistd.h>
 
 #include "bp/wire/recording.h"
 
@@ -185,6 +190,62 @@ TEST(Bpctl, WatchExactJoinsLateAndAgreesWithTheDaemon) {
   publisher.join();
   EXPECT_GE(daemon.daemon().snapshots(), 1u);
   EXPECT_TRUE(daemon.Stop().ok());
+}
+
+// watch --latency-log writes one CSV line per frame: the scene's stamp, the daemon's
+// publication and the arrival, in that order of time; an unwritable path is refused at start.
+TEST(Bpctl, WatchLatencyLogHasOneOrderedLinePerFrame) {
+  service::Config config = TestConfig(kDomain);
+  bpctl::Common common;
+  common.config = config;
+  common.wait_s = 10;
+  bpctl::WatchOptions watch;
+  watch.stats = true;
+  watch.latency_log = "/nonexistent-dir/latency.csv";
+  const auto refused_at = std::chrono::steady_clock::now();
+  EXPECT_EQ(bpctl::Watch(common, watch), 1) << "an unwritable --latency-log";
+  // Refused before it waits for a daemon (there is none yet; that wait is common.wait_s).
+  EXPECT_LT(std::chrono::steady_clock::now() - refused_at, 5s);
+
+  bpctl::SceneOptions scene;
+  scene.params.n = 500;
+  scene.params.moving = 50;
+  scene.params.churn = 5;
+  scene.params.density = 0.1;
+  scene.rate_hz = 40;
+  scene.frames = 120;
+  scene.quiet = true;
+  InProcessDaemon daemon(config);
+  std::thread publisher([&] { EXPECT_EQ(bpctl::Scene(common, scene), 0); });
+  const auto file =
+      std::filesystem::temp_directory_path() / ("bp-latency-" + std::to_string(getpid()) + ".csv");
+  watch.latency_log = file.string();
+  watch.seconds = 2;
+  EXPECT_EQ(bpctl::Watch(common, watch), 0);
+  publisher.join();
+  EXPECT_TRUE(daemon.Stop().ok());
+
+  std::ifstream in(file);
+  std::string line;
+  ASSERT_TRUE(std::getline(in, line));
+  EXPECT_EQ(line, "frame,sent_ns,published_ns,arrived_ns");
+  size_t lines = 0;
+  uint64_t last_frame = 0;
+  while (std::getline(in, line)) {
+    uint64_t frame = 0, sent = 0, published = 0, arrived = 0;
+    ASSERT_EQ(std::sscanf(line.c_str(), "%" SCNu64 ",%" SCNu64 ",%" SCNu64 ",%" SCNu64, &frame,
+                          &sent, &published, &arrived),
+              4)
+        << line;
+    EXPECT_GT(frame, last_frame) << line;
+    EXPECT_GT(sent, 0u) << line;
+    EXPECT_LE(sent, published) << line;
+    EXPECT_LE(published, arrived) << line;
+    last_frame = frame;
+    ++lines;
+  }
+  EXPECT_GE(lines, 20u) << "two seconds of a 40 Hz scene";
+  std::filesystem::remove(file);
 }
 
 }  // namespace
