@@ -3,6 +3,7 @@
 #include <cerrno>
 #include <cstring>
 #include <memory>
+#include <string>
 #include <vector>
 
 #include "common.h"
@@ -81,10 +82,12 @@ int Watch(const Common& common, const WatchOptions& options) {
   std::vector<double> latency_ms;
   // Totals after the warm-up: frames, the span they arrived in, every latency.
   std::vector<double> all_latency_ms;
-  // The two legs of each latency: the scene's stamp to the daemon's publication of the frame's
-  // last part (upload, ingest, query, encoding), and that publication to arrival here (DDS
-  // delivery, decoding, this process's scheduling). Both clocks are CLOCK_REALTIME: across
-  // machines the legs carry the clocks' offset, their sum does not.
+  // The two legs of each latency: the scene's stamp to the daemon's publication stamp of the
+  // frame's last part (upload, ingest, query; the stamp precedes the part's encoding), and that
+  // stamp to arrival here (encoding, DDS delivery, decoding, this process's scheduling). Both
+  // clocks are CLOCK_REALTIME: across machines the legs carry the clocks' offset, their sum
+  // does not. Frames without both stamps, or whose stamps go backwards, are left out of the legs.
+  // Kept (like the totals) only with --stats, which prints them.
   std::vector<double> all_to_publish_ms, all_delivery_ms;
   uint64_t total_frames = 0, total_events = 0;
   std::chrono::steady_clock::time_point first_frame{}, last_frame{};
@@ -145,16 +148,16 @@ int Watch(const Common& common, const WatchOptions& options) {
       double latency = -1;
       if (b.source_sent_time_ns() != 0 && now_ns >= b.source_sent_time_ns()) {
         latency = static_cast<double>(now_ns - b.source_sent_time_ns()) / 1e6;
-        latency_ms.push_back(latency);
+        if (options.stats) latency_ms.push_back(latency);  // printed and cleared each second
       }
       if (counted) {
         const auto now = std::chrono::steady_clock::now();
         if (total_frames == 0) first_frame = now;
         last_frame = now;
         ++total_frames;
-        if (latency >= 0) all_latency_ms.push_back(latency);
+        if (options.stats && latency >= 0) all_latency_ms.push_back(latency);
         const uint64_t published = b.published_time_ns(), sent = b.source_sent_time_ns();
-        if (sent != 0 && published >= sent && now_ns >= published) {
+        if (options.stats && sent != 0 && published >= sent && now_ns >= published) {
           all_to_publish_ms.push_back(static_cast<double>(published - sent) / 1e6);
           all_delivery_ms.push_back(static_cast<double>(now_ns - published) / 1e6);
         }
@@ -197,9 +200,14 @@ int Watch(const Common& common, const WatchOptions& options) {
     window_frames = window_collides = window_uncollides = 0;
     latency_ms.clear();
   }
-  if (log_file && std::fclose(log_file.release()) != 0) {
-    std::fprintf(stderr, "bpctl watch: writing --latency-log %s: %s\n", options.latency_log.c_str(),
-                 std::strerror(errno));
+  bool log_failed = false;
+  if (log_file) {
+    const bool lost = std::ferror(log_file.get()) != 0;
+    if (std::fclose(log_file.release()) != 0 || lost) {
+      std::fprintf(stderr, "bpctl watch: --latency-log %s is incomplete: %s\n",
+                   options.latency_log.c_str(), std::strerror(errno));
+      log_failed = true;
+    }
   }
   if (options.stats) {
     // Sustained rate: frames after the first counted one over the time they took to arrive.
@@ -209,27 +217,32 @@ int Watch(const Common& common, const WatchOptions& options) {
     std::vector<double> sorted = all_latency_ms;
     const double p50 = Percentile(sorted, 0.5), p99 = Percentile(sorted, 0.99);
     const double max = sorted.empty() ? 0 : *std::max_element(sorted.begin(), sorted.end());
-    const double up50 = Percentile(all_to_publish_ms, 0.5),
-                 up99 = Percentile(all_to_publish_ms, 0.99);
-    const double down50 = Percentile(all_delivery_ms, 0.5),
-                 down99 = Percentile(all_delivery_ms, 0.99);
+    // A leg's percentile, or null (JSON) / n/a when no frame had both stamps.
+    auto leg = [&](std::vector<double>& v, double p) -> std::string {
+      if (v.empty()) return options.json ? "null" : "n/a";
+      char text[32];
+      std::snprintf(text, sizeof(text), options.json ? "%.3f" : "%.2f", Percentile(v, p));
+      return text;
+    };
+    const std::string up50 = leg(all_to_publish_ms, 0.5), up99 = leg(all_to_publish_ms, 0.99);
+    const std::string down50 = leg(all_delivery_ms, 0.5), down99 = leg(all_delivery_ms, 0.99);
     if (options.json) {
       std::printf(
           "{\"total\": true, \"frames\": %llu, \"seconds\": %.3f, \"frames_per_s\": "
           "%.2f, \"events\": %llu, \"latency_ms_p50\": %.3f, \"latency_ms_p99\": %.3f, "
-          "\"latency_ms_max\": %.3f, \"to_publish_ms_p50\": %.3f, \"to_publish_ms_p99\": %.3f, "
-          "\"delivery_ms_p50\": %.3f, \"delivery_ms_p99\": %.3f, \"gaps\": %llu}\n",
+          "\"latency_ms_max\": %.3f, \"to_publish_ms_p50\": %s, \"to_publish_ms_p99\": %s, "
+          "\"delivery_ms_p50\": %s, \"delivery_ms_p99\": %s, \"gaps\": %llu}\n",
           static_cast<unsigned long long>(total_frames), span, rate,
-          static_cast<unsigned long long>(total_events), p50, p99, max, up50, up99, down50, down99,
-          static_cast<unsigned long long>(sub->gaps()));
+          static_cast<unsigned long long>(total_events), p50, p99, max, up50.c_str(), up99.c_str(),
+          down50.c_str(), down99.c_str(), static_cast<unsigned long long>(sub->gaps()));
     } else {
       std::printf(
           "total after %.0f s warm-up: %llu frames in %.2f s (%.1f frames/s), %llu "
           "events, update->event p50 %.2f ms p99 %.2f ms max %.2f ms (to the daemon's "
-          "publication p50 %.2f p99 %.2f, delivery p50 %.2f p99 %.2f), gaps %llu\n",
+          "publication p50 %s p99 %s, delivery p50 %s p99 %s), gaps %llu\n",
           options.warmup_s, static_cast<unsigned long long>(total_frames), span, rate,
-          static_cast<unsigned long long>(total_events), p50, p99, max, up50, up99, down50, down99,
-          static_cast<unsigned long long>(sub->gaps()));
+          static_cast<unsigned long long>(total_events), p50, p99, max, up50.c_str(), up99.c_str(),
+          down50.c_str(), down99.c_str(), static_cast<unsigned long long>(sub->gaps()));
     }
     std::fflush(stdout);
   }
@@ -251,7 +264,7 @@ int Watch(const Common& common, const WatchOptions& options) {
     }
     if (exact_mismatches > 0 || view.contradictions() > 0) return 1;
   }
-  return 0;
+  return log_failed ? 1 : 0;
 }
 
 int ShowStatus(const Common& common, const StatusOptions& options) {

@@ -219,11 +219,33 @@ TEST(Bpctl, WatchLatencyLogHasOneOrderedLinePerFrame) {
   std::thread publisher([&] { EXPECT_EQ(bpctl::Scene(common, scene), 0); });
   const auto file =
       std::filesystem::temp_directory_path() / ("bp-latency-" + std::to_string(getpid()) + ".csv");
+  struct RemoveFile {
+    std::filesystem::path path;
+    ~RemoveFile() { std::filesystem::remove(path); }
+  } remove_file{file};
   watch.latency_log = file.string();
   watch.seconds = 2;
+  testing::internal::CaptureStdout();
   EXPECT_EQ(bpctl::Watch(common, watch), 0);
+  const std::string out = testing::internal::GetCapturedStdout();
   publisher.join();
   EXPECT_TRUE(daemon.Stop().ok());
+  // The totals split the latency at the daemon's publication, with numbers (every frame here
+  // carries both stamps).
+  const size_t totals = out.find("total after");
+  ASSERT_NE(totals, std::string::npos) << out;
+  double up50 = -1, up99 = -1, down50 = -1, down99 = -1;
+  const size_t legs = out.find("(to the daemon's publication", totals);
+  ASSERT_NE(legs, std::string::npos) << out;
+  ASSERT_EQ(std::sscanf(out.c_str() + legs,
+                        "(to the daemon's publication p50 %lf p99 %lf, delivery p50 %lf p99 %lf)",
+                        &up50, &up99, &down50, &down99),
+            4)
+      << out.substr(totals);
+  EXPECT_GE(up50, 0);
+  EXPECT_GE(up99, up50);
+  EXPECT_GE(down50, 0);
+  EXPECT_GE(down99, down50);
 
   std::ifstream in(file);
   std::string line;
@@ -245,7 +267,6 @@ TEST(Bpctl, WatchLatencyLogHasOneOrderedLinePerFrame) {
     ++lines;
   }
   EXPECT_GE(lines, 20u) << "two seconds of a 40 Hz scene";
-  std::filesystem::remove(file);
 }
 
 }  // namespace
