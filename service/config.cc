@@ -33,7 +33,7 @@ constexpr std::array<std::string_view, 7> kDdsKeys{
     "domain",           "cyclone_config", "partition",   "topics",
     "write_timeout_ms", "event_history",  "update_queue"};
 constexpr std::array<std::string_view, 4> kTopicKeys{"updates", "events", "status", "requests"};
-constexpr std::array<std::string_view, 2> kFramesKeys{"boundary", "tick_ms"};
+constexpr std::array<std::string_view, 3> kFramesKeys{"boundary", "tick_ms", "keep_cpus_awake_ms"};
 constexpr std::array<std::string_view, 6> kLimitsKeys{
     "max_batch_bytes",           "max_batch_items",         "max_objects",
     "max_pairs_per_event_batch", "max_rejections_reported", "snapshot_interval_ms"};
@@ -49,6 +49,7 @@ constexpr int kMaxThreads = 256;
 constexpr int kMaxWriteTimeoutMs = 60000;
 constexpr int kMaxQueueDepth = 100000;
 constexpr double kMaxTickMs = 60000;
+constexpr int kMaxKeepAwakeMs = 60000;
 constexpr double kMaxSummaryIntervalS = 86400;
 constexpr double kMaxLeaseS = 86400;
 constexpr uint64_t kMinBatchBytes = 64;
@@ -152,6 +153,8 @@ void ReadFrames(YamlReader& r, const Field& section, FramesConfig* f) {
     } else if (name == "tick_ms") {
       r.ReadNumber(v, NumberRange{.min = 0, .min_inclusive = false, .max = kMaxTickMs},
                    &f->tick_ms);
+    } else if (name == "keep_cpus_awake_ms") {
+      r.ReadInt(v, 0, kMaxKeepAwakeMs, &f->keep_cpus_awake_ms);
     }
   });
 }
@@ -424,6 +427,7 @@ std::string ConfigToYaml(const Config& c) {
   y += "frames:\n";
   line(k1, "boundary", FrameBoundaryName(c.frames.boundary));
   line(k1, "tick_ms", FormatNumber(c.frames.tick_ms));
+  line(k1, "keep_cpus_awake_ms", std::to_string(c.frames.keep_cpus_awake_ms));
   y += "limits:\n";
   line(k1, "max_batch_bytes", std::to_string(c.limits.max_batch_bytes));
   line(k1, "max_batch_items", std::to_string(c.limits.max_batch_items));

@@ -85,6 +85,11 @@ struct DdsConfig {
 struct FramesConfig {
   FrameBoundary boundary = FrameBoundary::kEndOfFrame;  ///< yaml: end_of_frame | tick
   double tick_ms = 16.667;  ///< > 0, <= 60000; used when boundary is tick
+  /// 0 .. 60000 ms; 0 = off. Otherwise, after each update batch the daemon keeps every CPU it may
+  /// run on from idling for this long, with spinning threads of the lowest class (SCHED_IDLE,
+  /// service/keep_awake.h): lower latency on virtual machines whose idle CPUs wake slowly, for
+  /// CPUs that read 100% busy while frames flow.
+  int keep_cpus_awake_ms = 0;
 
   /// Member-wise equality.
   bool operator==(const FramesConfig&) const = default;

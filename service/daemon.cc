@@ -106,6 +106,19 @@ Status Daemon::Run() {
       config_.dds.domain, config_.dds.partition, config_.dds.topics.updates,
       config_.dds.topics.events, config_.dds.topics.status, config_.dds.topics.requests,
       FrameBoundaryName(config_.frames.boundary), config_.producers.lease_s, epoch_);
+  if (config_.frames.keep_cpus_awake_ms > 0) {
+    if (Status s = KeepAwake::Start(std::chrono::milliseconds(config_.frames.keep_cpus_awake_ms),
+                                    &keep_awake_);
+        s.ok()) {
+      spdlog::info(
+          "keeping {} CPU{} awake for {} ms after each update batch "
+          "(frames.keep_cpus_awake_ms)",
+          keep_awake_->threads(), keep_awake_->threads() == 1 ? "" : "s",
+          config_.frames.keep_cpus_awake_ms);
+    } else {
+      spdlog::warn("frames.keep_cpus_awake_ms: CPUs are not kept awake: {}", s.ToString());
+    }
+  }
   PublishStatus(wire::SERVING, false);
   serving_.store(true);
   interval_start_ = Clock::now();
@@ -167,6 +180,7 @@ Status Daemon::Run() {
     spdlog::warn("not every subscriber acknowledged the last events: {}", s.ToString());
   }
   if (summaries) Summary();
+  keep_awake_.reset();
   PublishStatus(wire::STOPPING, false);
   (void)status_.WaitForAcks(std::chrono::milliseconds(500));
   spdlog::info("stopped after {} frames, {} batches, {} rejected items", frames_.load(),
@@ -428,6 +442,7 @@ void Daemon::ExpireProducer(uint32_t producer, const std::string& why, bool leas
 
 void Daemon::ProcessPayload(std::span<const uint8_t> payload, const dds_sample_info_t& info) {
   const auto start = Clock::now();
+  if (keep_awake_) keep_awake_->Touch();
   ++batches_total_;
   ++interval_batches_;
   auto batch_reject = [&](uint32_t producer, wire::RejectReason reason, std::string why) {

@@ -35,6 +35,7 @@
 #include "broadphase.pb.h"
 #include "config.h"
 #include "engine_host.h"
+#include "keep_awake.h"
 
 #include "bp/client/connection.h"
 #include "bp/dds/dds.h"
@@ -113,6 +114,7 @@ class Daemon {
   // Before connection_: Cyclone's listener thread may call it until the reader is deleted.
   std::unique_ptr<dds::WriterLiveliness> liveliness_;
   std::unique_ptr<EngineHost> host_;
+  std::unique_ptr<KeepAwake> keep_awake_;  // frames.keep_cpus_awake_ms > 0, while Run serves
   std::unique_ptr<client::Connection> connection_;
   dds::Reader updates_;
   dds::Writer events_;

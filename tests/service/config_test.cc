@@ -124,6 +124,7 @@ TEST(ConfigDefaults, MatchTheDocumentedValues) {
   EXPECT_EQ(c.dds.update_queue, 32);
   EXPECT_EQ(c.frames.boundary, FrameBoundary::kEndOfFrame);
   EXPECT_EQ(c.frames.tick_ms, 16.667);
+  EXPECT_EQ(c.frames.keep_cpus_awake_ms, 0);
   EXPECT_EQ(c.limits.max_batch_bytes, 64ull << 20);
   EXPECT_EQ(c.limits.max_batch_items, 1ull << 20);
   EXPECT_EQ(c.limits.max_objects, 1ull << 26);
@@ -219,7 +220,8 @@ const RuleCase kRuleCases[] = {
      "cfg.yaml:1:9: engine: expected a mapping (keys: algorithm, dimension, coordinate, "
      "cell_size, threads, margin), got a sequence"},
     {"ScalarForSection", "frames: tick\n",
-     "cfg.yaml:1:9: frames: expected a mapping (keys: boundary, tick_ms), got the scalar 'tick'"},
+     "cfg.yaml:1:9: frames: expected a mapping (keys: boundary, tick_ms, keep_cpus_awake_ms), got "
+     "the scalar 'tick'"},
     {"SequenceForDocument", "- engine\n- dds\n",
      "cfg.yaml:1:1: (document): expected a mapping (keys: engine, dds, frames, limits, logging, "
      "producers), "
@@ -307,6 +309,10 @@ const RuleCase kRuleCases[] = {
      "cfg.yaml:2:12: frames.tick_ms: must be > 0 and <= 60000, got 0"},
     {"TickTooLong", "frames:\n  tick_ms: 60000.5\n",
      "cfg.yaml:2:12: frames.tick_ms: must be > 0 and <= 60000, got 60000.5"},
+    {"KeepAwakeNegative", "frames:\n  keep_cpus_awake_ms: -1\n",
+     "cfg.yaml:2:23: frames.keep_cpus_awake_ms: must be between 0 and 60000, got -1"},
+    {"KeepAwakeTooLong", "frames:\n  keep_cpus_awake_ms: 60001\n",
+     "cfg.yaml:2:23: frames.keep_cpus_awake_ms: must be between 0 and 60000, got 60001"},
     {"BatchBytesTooSmall", "limits:\n  max_batch_bytes: 63\n",
      "cfg.yaml:2:20: limits.max_batch_bytes: must be between 64 and 2147483647, got 63"},
     {"BatchBytesTooLarge", "limits:\n  max_batch_bytes: 2147483648\n",
@@ -501,6 +507,7 @@ TEST(ConfigValues, EveryKeyIsReadIncludingTheBounds) {
       "frames:\n"
       "  boundary: tick\n"
       "  tick_ms: 60000\n"
+      "  keep_cpus_awake_ms: 60000\n"
       "limits:\n"
       "  max_batch_bytes: 64\n"
       "  max_batch_items: 1\n"
@@ -527,6 +534,7 @@ TEST(ConfigValues, EveryKeyIsReadIncludingTheBounds) {
   EXPECT_EQ(c.dds.update_queue, 1);
   EXPECT_EQ(c.frames.boundary, FrameBoundary::kTick);
   EXPECT_EQ(c.frames.tick_ms, 60000.0);
+  EXPECT_EQ(c.frames.keep_cpus_awake_ms, 60000);
   EXPECT_EQ(c.limits.max_batch_bytes, 64u);
   EXPECT_EQ(c.limits.max_batch_items, 1u);
   EXPECT_EQ(c.limits.max_objects, std::numeric_limits<uint64_t>::max());
@@ -701,11 +709,11 @@ TEST(ConfigToYamlTest, WritesEveryKeyPlainWhereUnambiguous) {
   for (const char* line :
        {"engine:\n", "  algorithm: grid_dense\n", "  cell_size: auto\n", "  margin: 0.0\n",
         "  partition: \"\"\n", "  topics:\n", "    events: bp_events\n", "  tick_ms: 16.667\n",
-        "  max_batch_bytes: 67108864\n", "  summary_interval_s: 5.0\n", "  file: \"\"\n",
-        "producers:\n", "  lease_s: 10.0\n"}) {
+        "  keep_cpus_awake_ms: 0\n", "  max_batch_bytes: 67108864\n", "  summary_interval_s: 5.0\n",
+        "  file: \"\"\n", "producers:\n", "  lease_s: 10.0\n"}) {
     EXPECT_TRUE(Contains(yaml, line)) << line << "---\n" << yaml;
   }
-  EXPECT_EQ(Lines(yaml).size(), 35u) << yaml;  // 6 sections + topics + 28 keys
+  EXPECT_EQ(Lines(yaml).size(), 36u) << yaml;  // 6 sections + topics + 29 keys
 }
 
 TEST(ConfigNames, AreCanonical) {

@@ -99,9 +99,10 @@ void PublishFrame(client::UpdatePublisher& pub, const FrameOps& ops, int dim, ui
 }
 
 template <int K>
-void RunScene(const char* algorithm) {
+void RunScene(const char* algorithm, int keep_cpus_awake_ms = 0) {
   service::Config config = TestConfig(kDomain);
   config.engine.algorithm = algorithm;
+  config.frames.keep_cpus_awake_ms = keep_cpus_awake_ms;
   config.engine.dimension = K;
   InProcessDaemon daemon(config);
   Client client(config);
@@ -139,6 +140,8 @@ TEST(Daemon, SceneMatchesOracleWithBruteForceEngine) { RunScene<3>("brute_force"
 TEST(Daemon, GridSceneMatchesOracleFrameByFrame3D) { RunScene<3>("grid_segmented_sap"); }
 TEST(Daemon, GridBatchSceneMatchesOracleFrameByFrame2D) { RunScene<2>("grid_batch_sap"); }
 TEST(Daemon, GridDenseSceneMatchesOracleFrameByFrame3D) { RunScene<3>("grid_dense"); }
+// The CPUs kept awake (frames.keep_cpus_awake_ms) by SCHED_IDLE spinners change no event.
+TEST(Daemon, SceneMatchesOracleWithTheCpusKeptAwake) { RunScene<3>("grid_dense", 50); }
 
 wire::UpdateBatch InsertBatch(std::initializer_list<std::pair<uint64_t, Box<3, float>>> boxes) {
   wire::UpdateBatch batch;

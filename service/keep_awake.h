@@ -1,0 +1,85 @@
+// bp::service::KeepAwake: threads of the lowest scheduling class (SCHED_IDLE), one pinned to each
+// CPU the daemon may run on, that spin for a window after each update batch so that no CPU halts
+// while frames flow (frames.keep_cpus_awake_ms).
+//
+// Why: on a virtual machine an idle CPU halts, and waking it (a packet for the DDS receive
+// thread, the engine's worker for the query) exits to the hypervisor. On this project's
+// Firecracker guests (haltpoll cpuidle with guest_halt_poll_ns=0) the daemon's two-thread
+// S1-200k query had a p50 of 3.1 ms and a p90 of 5.8-7.0; with the CPUs kept awake its p90 was
+// 3.0-3.2, and scripts/e2e-bench's update->event p99 8.96-9.64 ms against 10.35-11.85 without (3
+// alternating pairs, 2026-11-27).
+//
+// A SCHED_IDLE thread is chosen only when nothing else on its CPU is runnable, so within the
+// guest it takes no time from the daemon or any other process (the kernel preempts it at once
+// for a woken thread); it only keeps the CPU from halting. Outside the guest it is not free: every
+// CPU reads busy while batches keep arriving, plus the window (power, and the host's cycles), and
+// where two virtual CPUs share a physical core the spin takes issue slots from the other: on this
+// project's VM a compute loop ran in 0.95 s beside spinning CPUs against 0.60 s without. The
+// daemon's frames, which wait on memory more than on issue slots, gained more than they lost
+// there; measure before enabling it elsewhere. After the window the threads block until the
+// next batch.
+//
+// The spin loop does not use PAUSE: a hypervisor's pause-loop exiting would deschedule the CPU
+// just as halting does.
+//
+// Stopping waits for each thread to see the stop, which takes a moment of its CPU: on a loaded
+// machine, where SCHED_IDLE threads run least, over a second.
+//
+// Thread safety: Touch may be called from any thread; the rest from the owner.
+// Invariants:
+//  1. The threads spin only while now < deadline (the last Touch plus the window), else wait.
+//  2. The destructor returns after every thread has stopped.
+#pragma once
+
+#include <atomic>
+#include <chrono>
+#include <condition_variable>
+#include <cstdint>
+#include <future>
+#include <memory>
+#include <mutex>
+#include <string>
+#include <thread>
+#include <vector>
+
+#include "bp/status.h"
+
+namespace bp::service {
+
+class KeepAwake {
+ public:
+  /// Starts one thread per CPU in this process's affinity mask (at most 256), each pinned to its
+  /// CPU and switched to SCHED_IDLE, waiting for the first Touch. Fails (and starts nothing)
+  /// when a thread cannot take the SCHED_IDLE class, so that no thread ever spins at a normal
+  /// priority. window must be positive.
+  static Status Start(std::chrono::nanoseconds window, std::unique_ptr<KeepAwake>* out);
+  ~KeepAwake();
+  KeepAwake(const KeepAwake&) = delete;
+  KeepAwake& operator=(const KeepAwake&) = delete;
+
+  /// Keeps the CPUs awake until now + window (an update batch arrived).
+  void Touch();
+
+  /// The threads started (one per CPU).
+  unsigned threads() const { return static_cast<unsigned>(threads_.size()); }
+  /// Threads blocked, waiting for a Touch (for tests and the status report).
+  unsigned waiting() const { return waiting_.load(std::memory_order_relaxed); }
+  /// Spin rounds so far, all threads together (each round reads the clock once).
+  uint64_t rounds() const { return rounds_.load(std::memory_order_relaxed); }
+
+ private:
+  explicit KeepAwake(std::chrono::nanoseconds window) : window_(window) {}
+  void Run(int cpu, std::promise<Status>* started);
+  static int64_t NowNs();
+
+  const std::chrono::nanoseconds window_;
+  std::vector<std::thread> threads_;
+  std::mutex mutex_;
+  std::condition_variable wake_;
+  std::atomic<int64_t> deadline_ns_{0};  // steady clock; spin while now is before it
+  std::atomic<unsigned> waiting_{0};
+  std::atomic<uint64_t> rounds_{0};
+  std::atomic<bool> stop_{false};
+};
+
+}  // namespace bp::service
