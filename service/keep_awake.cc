@@ -2,6 +2,7 @@
 
 #include <algorithm>
 #include <cstring>
+#include <system_error>
 
 #include <pthread.h>
 #include <sched.h>
@@ -27,15 +28,21 @@ Status KeepAwake::Start(std::chrono::nanoseconds window, std::unique_ptr<KeepAwa
     }
   }
   if (cpus.empty()) cpus.push_back(-1);  // no mask: one unpinned thread
-  std::unique_ptr<KeepAwake> keeper(new KeepAwake(window));
+  // Declared before the keeper, so that the promises outlive the threads whatever happens.
   std::vector<std::promise<Status>> started(cpus.size());
-  for (size_t i = 0; i < cpus.size(); ++i) {
-    keeper->threads_.emplace_back(
-        [k = keeper.get(), cpu = cpus[i], p = &started[i]] { k->Run(cpu, p); });
-  }
+  std::unique_ptr<KeepAwake> keeper(new KeepAwake(window));
   Status result = Status::Ok();
-  for (auto& p : started) {
-    Status s = p.get_future().get();
+  size_t running = 0;
+  try {
+    for (; running < cpus.size(); ++running) {
+      keeper->threads_.emplace_back(
+          [k = keeper.get(), cpu = cpus[running], p = &started[running]] { k->Run(cpu, p); });
+    }
+  } catch (const std::system_error& e) {
+    result = Status(StatusCode::kUnavailable, std::string("cannot start a thread: ") + e.what());
+  }
+  for (size_t i = 0; i < running; ++i) {
+    Status s = started[i].get_future().get();
     if (!s.ok() && result.ok()) result = s;
   }
   if (!result.ok()) return result;  // the destructor stops the threads that did start
@@ -84,7 +91,7 @@ void KeepAwake::Run(int cpu, std::promise<Status>* started) {
   uint64_t rounds = 0;
   while (!stop_.load(std::memory_order_relaxed)) {
     if (NowNs() < deadline_ns_.load(std::memory_order_relaxed)) {
-      // About a microsecond per round between clock reads; no PAUSE (see the header).
+      // A fraction of a microsecond per round between clock reads; no PAUSE (see the header).
       for (int i = 0; i < 256; ++i) asm volatile("" ::: "memory");
       ++rounds;
       continue;
