@@ -14,10 +14,10 @@
 // for a woken thread); it only keeps the CPU from halting. Outside the guest it is not free: every
 // CPU reads busy while batches keep arriving, plus the window (power, and the host's cycles), and
 // where two virtual CPUs share a physical core the spin takes issue slots from the other: on this
-// project's VM a compute loop ran in 0.95 s beside spinning CPUs against 0.60 s without. The
-// daemon's frames, which wait on memory more than on issue slots, gained more than they lost
-// there; measure before enabling it elsewhere. After the window the threads block until the
-// next batch.
+// project's VM a compute loop ran in 0.95 s beside spinning CPUs against 0.60 s without (one
+// run each, 50 minutes apart). The daemon's frames, which wait on memory more than on issue
+// slots, gained more than they lost there; measure before enabling it elsewhere. After the
+// window the threads block until the next batch.
 //
 // The spin loop does not use PAUSE: a hypervisor's pause-loop exiting would deschedule the CPU
 // just as halting does.
