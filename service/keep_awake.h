@@ -6,18 +6,17 @@
 // thread, the engine's worker for the query) exits to the hypervisor. On this project's
 // Firecracker guests (haltpoll cpuidle with guest_halt_poll_ns=0) the daemon's two-thread
 // S1-200k query had a p50 of 3.1 ms and a p90 of 5.8-7.0; with the CPUs kept awake its p90 was
-// 3.0-3.2, and scripts/e2e-bench's update->event p99 8.96-9.64 ms against 10.35-11.85 without (3
+// 3.0-3.2, and scripts/e2e-bench's update->event p99 8.4-9.6 ms against 10.0-12.1 without (6
 // alternating pairs, 2026-11-27).
 //
 // A SCHED_IDLE thread is chosen only when nothing else on its CPU is runnable, so within the
 // guest it takes no time from the daemon or any other process (the kernel preempts it at once
-// for a woken thread); it only keeps the CPU from halting. Outside the guest it is not free: every
-// CPU reads busy while batches keep arriving, plus the window (power, and the host's cycles), and
-// where two virtual CPUs share a physical core the spin takes issue slots from the other: on this
-// project's VM a compute loop ran in 0.95 s beside spinning CPUs against 0.60 s without (one
-// run each, 50 minutes apart). The daemon's frames, which wait on memory more than on issue
-// slots, gained more than they lost there; measure before enabling it elsewhere. After the
-// window the threads block until the next batch.
+// for a woken thread; a compute loop pinned to each CPU ran 0.62-0.69 s beside two spinning
+// CPUs against 0.61-0.65 s without, 3 alternating rounds); it only keeps the CPU from halting.
+// Outside the guest it is not free: every CPU reads busy while batches keep arriving, plus the
+// window (power, and the host's cycles), and where two virtual CPUs share a physical core the
+// spin takes issue slots from the other. After the window the threads block until the next
+// batch.
 //
 // The spin loop does not use PAUSE: a hypervisor's pause-loop exiting would deschedule the CPU
 // just as halting does.
