@@ -110,6 +110,7 @@ Status Daemon::Run() {
     if (Status s = KeepAwake::Start(std::chrono::milliseconds(config_.frames.keep_cpus_awake_ms),
                                     &keep_awake_);
         s.ok()) {
+      cpus_kept_awake_.store(keep_awake_->threads());
       spdlog::info(
           "keeping {} CPU{} awake for {} ms after each update batch "
           "(frames.keep_cpus_awake_ms)",
@@ -167,6 +168,10 @@ Status Daemon::Run() {
     }
   }
 
+  // The spinners stop first: joining them can take a while on a loaded machine, where
+  // SCHED_IDLE threads get the least CPU, and the last frame needs no CPU kept awake.
+  keep_awake_.reset();
+  cpus_kept_awake_.store(0);
   // Stop: take what has already arrived (one bounded round, so a producer that keeps sending
   // cannot hold the daemon up), finish the frame, publish its events, and let them be acked.
   Drain(drain_rounds, /*until_stop=*/false);
@@ -180,7 +185,6 @@ Status Daemon::Run() {
     spdlog::warn("not every subscriber acknowledged the last events: {}", s.ToString());
   }
   if (summaries) Summary();
-  keep_awake_.reset();
   PublishStatus(wire::STOPPING, false);
   (void)status_.WaitForAcks(std::chrono::milliseconds(500));
   spdlog::info("stopped after {} frames, {} batches, {} rejected items", frames_.load(),

@@ -61,6 +61,8 @@ class Daemon {
   uint64_t producers_expired() const { return producers_expired_.load(); }
   /// Snapshots published so far.
   uint64_t snapshots() const { return snapshots_published_.load(); }
+  /// CPUs kept awake while Run serves (frames.keep_cpus_awake_ms; 0 when off or refused).
+  unsigned cpus_kept_awake() const { return cpus_kept_awake_.load(); }
   /// This run's epoch (EventBatch.epoch).
   uint64_t epoch() const { return epoch_; }
   /// Update batches received so far (malformed ones included).
@@ -114,7 +116,8 @@ class Daemon {
   // Before connection_: Cyclone's listener thread may call it until the reader is deleted.
   std::unique_ptr<dds::WriterLiveliness> liveliness_;
   std::unique_ptr<EngineHost> host_;
-  std::unique_ptr<KeepAwake> keep_awake_;  // frames.keep_cpus_awake_ms > 0, while Run serves
+  std::unique_ptr<KeepAwake> keep_awake_;     // frames.keep_cpus_awake_ms > 0, while Run serves
+  std::atomic<unsigned> cpus_kept_awake_{0};  // its threads, for other threads to read
   std::unique_ptr<client::Connection> connection_;
   dds::Reader updates_;
   dds::Writer events_;

@@ -28,9 +28,11 @@ Status KeepAwake::Start(std::chrono::nanoseconds window, std::unique_ptr<KeepAwa
     }
   }
   if (cpus.empty()) cpus.push_back(-1);  // no mask: one unpinned thread
-  // Declared before the keeper, so that the promises outlive the threads whatever happens.
+  // Declared before the keeper, so that the promises outlive the threads if Start fails (a
+  // thread touches its promise only before Start reads it).
   std::vector<std::promise<Status>> started(cpus.size());
   std::unique_ptr<KeepAwake> keeper(new KeepAwake(window));
+  keeper->threads_.reserve(cpus.size());
   Status result = Status::Ok();
   size_t running = 0;
   try {
@@ -51,23 +53,20 @@ Status KeepAwake::Start(std::chrono::nanoseconds window, std::unique_ptr<KeepAwa
 }
 
 KeepAwake::~KeepAwake() {
-  {
-    std::lock_guard<std::mutex> lock(mutex_);
-    stop_.store(true, std::memory_order_relaxed);
-  }
-  wake_.notify_all();
+  stop_.store(true, std::memory_order_seq_cst);
+  generation_.fetch_add(1, std::memory_order_seq_cst);
+  generation_.notify_all();
   for (std::thread& t : threads_) t.join();
 }
 
 void KeepAwake::Touch() {
-  // Sequentially consistent with the waiting thread's count-then-check: either this sees the
-  // thread counted as waiting and wakes it, or the thread sees the new deadline and does not wait.
+  // Invariant 1: either this sees the thread counted as waiting and bumps the generation it
+  // waits on, or the thread sees the new deadline and does not wait. No lock: a spinner
+  // preempted anywhere cannot hold this up.
   deadline_ns_.store(NowNs() + window_.count(), std::memory_order_seq_cst);
   if (waiting_.load(std::memory_order_seq_cst) == 0) return;
-  {
-    std::lock_guard<std::mutex> lock(mutex_);  // a thread between its check and its wait
-  }
-  wake_.notify_all();
+  generation_.fetch_add(1, std::memory_order_seq_cst);
+  generation_.notify_all();
 }
 
 void KeepAwake::Run(int cpu, std::promise<Status>* started) {
@@ -98,12 +97,13 @@ void KeepAwake::Run(int cpu, std::promise<Status>* started) {
     }
     rounds_.fetch_add(rounds, std::memory_order_relaxed);
     rounds = 0;
-    std::unique_lock<std::mutex> lock(mutex_);
+    // Invariant 1: the generation first, then counted, then the deadline checked again.
+    const uint32_t generation = generation_.load(std::memory_order_seq_cst);
     waiting_.fetch_add(1, std::memory_order_seq_cst);
-    wake_.wait(lock, [this] {
-      return stop_.load(std::memory_order_relaxed) ||
-             NowNs() < deadline_ns_.load(std::memory_order_seq_cst);
-    });
+    if (!stop_.load(std::memory_order_seq_cst) &&
+        NowNs() >= deadline_ns_.load(std::memory_order_seq_cst)) {
+      generation_.wait(generation, std::memory_order_seq_cst);
+    }
     waiting_.fetch_sub(1, std::memory_order_seq_cst);
   }
   rounds_.fetch_add(rounds, std::memory_order_relaxed);

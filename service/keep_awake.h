@@ -9,10 +9,12 @@
 // 3.0-3.2, and scripts/e2e-bench's update->event p99 8.4-9.6 ms against 10.0-12.1 without (6
 // alternating pairs, 2026-11-27).
 //
-// A SCHED_IDLE thread is chosen only when nothing else on its CPU is runnable, so within the
-// guest it takes no time from the daemon or any other process (the kernel preempts it at once
-// for a woken thread; a compute loop pinned to each CPU ran 0.62-0.69 s beside two spinning
-// CPUs against 0.61-0.65 s without, 3 alternating rounds); it only keeps the CPU from halting.
+// A SCHED_IDLE thread has the lowest weight the scheduler knows (3, against 1024 for a normal
+// thread), so within the guest it takes almost no time from the daemon or any other process
+// (the kernel preempts it at once for a woken thread; a compute loop pinned to each CPU ran
+// 0.62-0.69 s beside two spinning CPUs against 0.61-0.65 s without, 3 alternating rounds); it
+// keeps the CPU from halting. Touch takes no lock, so a spinner preempted anywhere never holds
+// the daemon up.
 // Outside the guest it is not free: every CPU reads busy while batches keep arriving, plus the
 // window (power, and the host's cycles), and where two virtual CPUs share a physical core the
 // spin takes issue slots from the other. After the window the threads block until the next
@@ -26,17 +28,19 @@
 //
 // Thread safety: Touch may be called from any thread; the rest from the owner.
 // Invariants:
-//  1. The threads spin only while now < deadline (the last Touch plus the window), else wait.
+//  1. The threads spin only while now < deadline (the last Touch plus the window), else wait on
+//     generation_ (a futex): a thread counts itself in waiting_ before it checks the deadline,
+//     and Touch stores the deadline before it reads waiting_ (both sequentially consistent), so
+//     either the thread sees the new deadline or Touch sees it waiting and bumps generation_,
+//     which ends or prevents its wait.
 //  2. The destructor returns after every thread has stopped.
 #pragma once
 
 #include <atomic>
 #include <chrono>
-#include <condition_variable>
 #include <cstdint>
 #include <future>
 #include <memory>
-#include <mutex>
 #include <string>
 #include <thread>
 #include <vector>
@@ -61,7 +65,7 @@ class KeepAwake {
 
   /// The threads started (one per CPU).
   unsigned threads() const { return static_cast<unsigned>(threads_.size()); }
-  /// Threads blocked, waiting for a Touch (for tests and the status report).
+  /// Threads counted as waiting for a Touch (for tests).
   unsigned waiting() const { return waiting_.load(std::memory_order_relaxed); }
   /// Spin rounds so far, all threads together (each round reads the clock once).
   uint64_t rounds() const { return rounds_.load(std::memory_order_relaxed); }
@@ -73,8 +77,7 @@ class KeepAwake {
 
   const std::chrono::nanoseconds window_;
   std::vector<std::thread> threads_;
-  std::mutex mutex_;
-  std::condition_variable wake_;
+  std::atomic<uint32_t> generation_{0};  // bumped to wake waiting threads (Touch, the destructor)
   std::atomic<int64_t> deadline_ns_{0};  // steady clock; spin while now is before it
   std::atomic<unsigned> waiting_{0};
   std::atomic<uint64_t> rounds_{0};

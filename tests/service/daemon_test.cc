@@ -127,8 +127,12 @@ void RunScene(const char* algorithm, int keep_cpus_awake_ms = 0) {
   EXPECT_EQ(last.last.source_producer(), 1u);
   EXPECT_EQ(last.last.source_frame(), 25u);
   EXPECT_GT(last.last.source_sent_time_ns(), 0u);
+  if (keep_cpus_awake_ms > 0) {
+    EXPECT_GE(daemon.daemon().cpus_kept_awake(), 1u) << "the CPUs were not kept awake";
+  }
   BP_ASSERT_OK(daemon.Stop());
   EXPECT_EQ(daemon.daemon().rejected(), 0u);
+  EXPECT_EQ(daemon.daemon().cpus_kept_awake(), 0u);
   EXPECT_EQ(client.events->subscriber().gaps(), 0u);
 }
 
