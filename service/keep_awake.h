@@ -6,7 +6,7 @@
 // thread, the engine's worker for the query) exits to the hypervisor. On this project's
 // Firecracker guests (haltpoll cpuidle with guest_halt_poll_ns=0) the daemon's two-thread
 // S1-200k query had a p50 of 3.1 ms and a p90 of 5.8-7.0; with the CPUs kept awake its p90 was
-// 3.0-3.2, and scripts/e2e-bench's update->event p99 8.4-9.6 ms against 10.0-12.1 without (6
+// 3.0-3.2, and scripts/e2e-bench's update->event p99 8.4-9.6 ms against 10.0-12.2 without (8
 // alternating pairs, 2026-11-27).
 //
 // A SCHED_IDLE thread has the lowest weight the scheduler knows (3, against 1024 for a normal
