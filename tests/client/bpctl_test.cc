@@ -10,7 +10,6 @@
 
 #include "../service/service_test_support.h"
 #include "commands.h"
-#include <unistd.h>
 
 #include "bp/wire/recording.h"
 
@@ -49,6 +48,20 @@ FrameMap RunDaemon(const service::Config& config, uint64_t frames, Publish publi
   publisher.join();
   EXPECT_TRUE(daemon.Stop().ok());
   return got;
+}
+
+// A scene of n objects (a tenth moving, a hundredth churned) at 40 Hz for 120 frames, quiet: a
+// few seconds of traffic for a watcher.
+bpctl::SceneOptions WatchedScene(uint32_t n) {
+  bpctl::SceneOptions scene;
+  scene.params.n = n;
+  scene.params.moving = n / 10;
+  scene.params.churn = n / 100;
+  scene.params.density = 0.1;
+  scene.rate_hz = 40;
+  scene.frames = 120;
+  scene.quiet = true;
+  return scene;
 }
 
 TEST(Bpctl, RecordReplayAndCheckGiveIdenticalEvents) {
@@ -171,14 +184,7 @@ TEST(Bpctl, WatchExactJoinsLateAndAgreesWithTheDaemon) {
   bpctl::Common common;
   common.config = config;
   common.wait_s = 10;
-  bpctl::SceneOptions scene;
-  scene.params.n = 1000;
-  scene.params.moving = 100;
-  scene.params.churn = 10;
-  scene.params.density = 0.1;
-  scene.rate_hz = 40;
-  scene.frames = 120;
-  scene.quiet = true;
+  const bpctl::SceneOptions scene = WatchedScene(1000);
   InProcessDaemon daemon(config);
   std::thread publisher([&] { EXPECT_EQ(bpctl::Scene(common, scene), 0); });
   std::this_thread::sleep_for(500ms);  // the scene is running: this watcher joins late
@@ -207,23 +213,15 @@ TEST(Bpctl, WatchLatencyLogHasOneOrderedLinePerFrame) {
   // Refused before it waits for a daemon (there is none yet; that wait is common.wait_s).
   EXPECT_LT(std::chrono::steady_clock::now() - refused_at, 5s);
 
-  bpctl::SceneOptions scene;
-  scene.params.n = 500;
-  scene.params.moving = 50;
-  scene.params.churn = 5;
-  scene.params.density = 0.1;
-  scene.rate_hz = 40;
-  scene.frames = 120;
-  scene.quiet = true;
+  const bpctl::SceneOptions scene = WatchedScene(500);
   InProcessDaemon daemon(config);
   std::thread publisher([&] { EXPECT_EQ(bpctl::Scene(common, scene), 0); });
-  const auto file =
-      std::filesystem::temp_directory_path() / ("bp-latency-" + std::to_string(getpid()) + ".csv");
+  const std::string file = TempFile("latency.csv");
   struct RemoveFile {
-    std::filesystem::path path;
+    std::string path;
     ~RemoveFile() { std::filesystem::remove(path); }
   } remove_file{file};
-  watch.latency_log = file.string();
+  watch.latency_log = file;
   watch.seconds = 2;
   testing::internal::CaptureStdout();
   EXPECT_EQ(bpctl::Watch(common, watch), 0);
