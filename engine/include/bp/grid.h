@@ -97,8 +97,9 @@ struct GridOptions {
   /// Threads that apply the touched cells of a query (the caller's included). Events do not
   /// depend on it: cells are independent, and their changes are folded in one fixed order.
   unsigned threads = 1;
-  /// With threads > 1, a query with at least this many updates routes them in parallel (below,
-  /// waking the workers costs more than it saves); 0 never does.
+  /// With threads > 1, a query with at least this many updates routes them in parallel, and an
+  /// UpdateMany or EraseMany of at least this many items looks their keys up in parallel
+  /// (below, waking the workers costs more than it saves); 0 never does either.
   size_t parallel_routing_from = 4096;
   /// Options of every cell.
   CellOptions cell{};
@@ -159,6 +160,13 @@ class GridCore {
   PairTracker& tracker() { return tracker_; }
   const PairTracker& tracker() const { return tracker_; }
   size_t live() const { return live_; }
+  /// The worker pool, when the grid has one and a loop over n light items (look-ups, routing)
+  /// is worth waking its workers for (n >= options().parallel_routing_from); else nullptr. The
+  /// front end resolves a large batch's keys through it (see KeyedEngine::ForEachResolved).
+  WorkerPool* PoolFor(size_t n) const {
+    if (pool_ == nullptr || options_.parallel_routing_from == 0) return nullptr;
+    return n >= std::max<size_t>(options_.parallel_routing_from, 2) ? pool_.get() : nullptr;
+  }
 
   void FillStats(Stats* out) const {
     out->swaps = swaps_;
@@ -663,8 +671,7 @@ class GridCore {
   // in parallel into per-run shards (RouteRun); the rest follow serially, in order.
   void RouteUpdates(std::span<const HandleBox<kDim, Coord>> updates) {
     const size_t n = updates.size();
-    if (pool_ == nullptr || large_count_ != 0 || options_.parallel_routing_from == 0 ||
-        n < std::max<size_t>(options_.parallel_routing_from, 2)) {
+    if (large_count_ != 0 || PoolFor(n) == nullptr) {
       routed_.reserve(n);
       for (size_t i = 0; i < n; ++i) {
         BP_GRID_PREFETCH_UPDATE(updates, i, n);
