@@ -36,8 +36,12 @@ struct GridTestPeer {
   }
   template <class Core>
   static void AddWitness(Core& core) {
+    bool added = false;
     core.tracker_.ForEachOverlap([&](uint32_t a, uint32_t b) {
-      if (core.extra_.empty()) ++core.extra_.FindOrInsert(HandlePair(a, b), 0);
+      if (added) return;
+      const uint64_t p = HandlePair(a, b);
+      ++core.extra_[core.tracker_.ShardOf(p)].FindOrInsert(p, 0);
+      added = true;
     });
   }
 };

@@ -44,7 +44,8 @@
 //  3. A large object's partners are exactly the live objects overlapping it; large partners
 //     hold each other.
 //  4. For every pair, the cells whose core holds it plus the large set (once) number
-//     1 + extra_[pair] when the tracker holds it (extra_ absent means 1), and 0 otherwise.
+//     1 + extra_[pair] when the tracker holds it (extra_ absent means 1), and 0 otherwise;
+//     extra_ has one map per shard of the tracker, and a pair's count lies in its shard's.
 //  5. The tracker's overlap set equals the overlapping pairs of the live boxes.
 #pragma once
 
@@ -94,8 +95,8 @@ struct GridOptions {
   double objects_per_cell = kDefaultObjectsPerCell<CellOptions>;
   /// An object whose box would cover more cells than this is kept in the large set instead.
   uint32_t max_cells_per_object = 16;
-  /// Threads that apply the touched cells of a query (the caller's included). Events do not
-  /// depend on it: cells are independent, and their changes are folded in one fixed order.
+  /// Threads that apply the touched cells of a query (the caller's included; 1 to 256). Events do
+  /// not depend on it: cells are independent, and their changes are folded in one fixed order.
   unsigned threads = 1;
   /// With threads > 1, a query with at least this many updates routes them in parallel, and an
   /// UpdateMany or EraseMany of at least this many items looks their keys up in parallel
@@ -123,8 +124,13 @@ class GridCore {
     if (!(options_.objects_per_cell >= 1)) options_.objects_per_cell = 1;
     if (options_.cell_size > 0 && std::isfinite(options_.cell_size))
       SetCellSize(options_.cell_size);
-    options_.threads = std::max(options_.threads, 1u);
-    if (options_.threads > 1) pool_ = std::make_unique<WorkerPool>(options_.threads);
+    options_.threads = std::clamp<unsigned>(options_.threads, 1, kMaxMergedThreads);
+    if (options_.threads > 1) {
+      pool_ = std::make_unique<WorkerPool>(options_.threads);
+      // One shard of the pair sets per thread (rounded up to a power of two): see FoldCells.
+      tracker_.SetShards(static_cast<unsigned>(std::bit_width(options_.threads - 1)));
+    }
+    extra_.resize(tracker_.shards());
   }
 
   void Apply(std::span<const uint32_t> erases, std::span<const HandleBox<kDim, Coord>> updates,
@@ -924,7 +930,7 @@ class GridCore {
     GroupUpdates();
     cell_out_.resize(touched_.size());
     if (pool_ != nullptr) {
-      witnessed_.resize(pool_->threads());
+      witnessed_.resize(size_t{pool_->threads()} * tracker_.shards());
       for (auto& w : witnessed_) w.clear();
       pool_->ParallelFor(touched_.size(), kCellRun, [this](size_t begin, size_t end, unsigned t) {
         for (size_t i = begin; i < end; ++i) {
@@ -984,17 +990,19 @@ class GridCore {
     cell.core.Apply(erases, std::span(grouped_.data() + work.begin, work.updates), inserts);
     Stats s;
     cell.core.FillStats(&s);
-    std::vector<Witnessed>& out = witnessed_[thread];
+    // Each change goes to this thread's buffer of its pair's shard (see FoldCells).
+    const size_t shards = tracker_.shards();
+    std::vector<Witnessed>* out = witnessed_.data() + size_t{thread} * shards;
     CellOut& co = cell_out_[i];
-    co.thread = thread;
-    co.begin = static_cast<uint32_t>(out.size());
     co.swaps = s.swaps;
     co.tests = s.overlap_tests;
     co.global_sort = s.global_sort;
+    const auto cell_i = static_cast<uint32_t>(i);
     CellPairs(cell.core).DrainChanges([&](uint32_t a, uint32_t b, bool now) {
-      out.push_back(Witnessed{cell.global[a], cell.global[b], now});
+      const uint32_t ga = cell.global[a], gb = cell.global[b];
+      const size_t shard = shards == 1 ? 0 : tracker_.ShardOf(HandlePair(ga, gb));
+      out[shard].push_back(Witnessed{ga, gb, cell_i, now});
     });
-    co.count = static_cast<uint32_t>(out.size()) - co.begin;
     for (uint32_t local : erases) {
       cell.global[local] = kNone;
       cell.free_local.push_back(local);
@@ -1038,38 +1046,77 @@ class GridCore {
     }
   }
 
-  // Folds every applied cell's changes into the witness counts, in the order of touched_, and
-  // recycles the cells that emptied. The pairs land all over the tracker's sets and the witness
-  // table: the lines a change probes are prefetched kFoldAhead changes ahead (across cells).
+  // Folds every applied cell's changes into the witness counts, then recycles the cells that
+  // emptied, in the order of touched_. A cell's changes wait in the buffer of the thread that
+  // applied it and of each pair's shard of the tracker (ApplyCell). With a pool and enough
+  // changes, each shard is folded by one thread (FoldShard): a pair's witness count and sets
+  // lie in its shard alone, and each shard sees its pairs' changes in the order of touched_, as
+  // the serial fold does, so the sets end as it leaves them, whatever the thread count. A
+  // rebuild's recount (see Regrid) folds serially.
   void FoldCells() {
+    size_t changes = 0;
+    for (const auto& w : witnessed_) changes += w.size();
+    const size_t shards = tracker_.shards();
+    if (shards > 1 && !recount_ && PoolFor(changes) != nullptr) {
+      pool_->ParallelFor(shards, 1, [this](size_t begin, size_t end, unsigned) {
+        for (size_t shard = begin; shard < end; ++shard) FoldShard(shard);
+      });
+    } else {
+      for (size_t shard = 0; shard < shards; ++shard) FoldShard(shard);
+    }
+    for (size_t i = 0; i < touched_.size(); ++i) FoldCell(i);
+  }
+
+  // Folds the changes of the pairs in tracker shard `shard`, in the order of touched_: the
+  // threads' buffers of the shard each hold their cells' changes in that order (a thread claims
+  // runs of cells in increasing order), and are merged by cell. The pairs land all over the
+  // tracker's sets and the witness table: the lines a change probes are prefetched kFoldAhead
+  // changes ahead.
+  void FoldShard(size_t shard) {
     static constexpr size_t kFoldAhead = 16;
-    const size_t n = touched_.size();
-    size_t ahead_cell = 0;
-    uint32_t ahead_k = 0;
-    auto prefetch_next = [&] {
-      while (ahead_cell < n && ahead_k >= cell_out_[ahead_cell].count) {
-        ++ahead_cell;
-        ahead_k = 0;
+    const size_t shards = tracker_.shards();
+    const size_t threads = witnessed_.size() / shards;
+    // A cursor over the merged buffers: (thread, position) of the next change in cell order.
+    struct Cursor {
+      std::array<size_t, kMaxMergedThreads> at{};
+    };
+    auto next = [&](Cursor& c) -> const Witnessed* {
+      const Witnessed* best = nullptr;
+      size_t best_t = 0;
+      for (size_t t = 0; t < threads; ++t) {
+        const std::vector<Witnessed>& buf = witnessed_[t * shards + shard];
+        const size_t at = t < kMaxMergedThreads ? c.at[t] : 0;
+        if (at < buf.size() && (best == nullptr || buf[at].cell < best->cell)) {
+          best = &buf[at];
+          best_t = t;
+        }
       }
-      if (ahead_cell == n) return;
-      const CellOut& co = cell_out_[ahead_cell];
-      const Witnessed& w = witnessed_[co.thread][co.begin + ahead_k++];
-      const uint64_t p = HandlePair(w.a, w.b);
+      if (best != nullptr) ++c.at[best_t];
+      return best;
+    };
+    auto prefetch = [&](const Witnessed* w) {
+      if (w == nullptr) return;
+      const uint64_t p = HandlePair(w->a, w->b);
       if (const void* line = tracker_.OverlapLine(p)) Prefetch(line);
       if (const void* line = tracker_.ChangedLine(p)) Prefetch(line);
-      if (!w.now) {
-        if (const void* line = extra_.HomeLine(p)) Prefetch(line);
+      if (!w->now) {
+        if (const void* line = extra_[shard].HomeLine(p)) Prefetch(line);
       }
     };
-    for (size_t k = 0; k < kFoldAhead; ++k) prefetch_next();
-    for (size_t i = 0; i < n; ++i) {
-      const CellOut& co = cell_out_[i];
-      const Witnessed* w = witnessed_[co.thread].data() + co.begin;
-      for (uint32_t k = 0; k < co.count; ++k) {
-        prefetch_next();
-        Witness(w[k].a, w[k].b, w[k].now);
+    if (threads == 1) {
+      // One buffer, already in cell order.
+      const std::vector<Witnessed>& buf = witnessed_[shard];
+      for (size_t k = 0; k < buf.size(); ++k) {
+        if (k + kFoldAhead < buf.size()) prefetch(&buf[k + kFoldAhead]);
+        WitnessIn(shard, buf[k].a, buf[k].b, buf[k].now);
       }
-      FoldCell(i);
+      return;
+    }
+    Cursor ahead, here;
+    for (size_t k = 0; k < kFoldAhead; ++k) prefetch(next(ahead));
+    while (const Witnessed* w = next(here)) {
+      prefetch(next(ahead));
+      WitnessIn(shard, w->a, w->b, w->now);
     }
   }
 
@@ -1091,22 +1138,27 @@ class GridCore {
 
   // One more (add) or one fewer (remove) witness of the pair a, b.
   void Witness(uint32_t a, uint32_t b, bool add) {
-    uint64_t p = HandlePair(a, b);
+    WitnessIn(tracker_.ShardOf(HandlePair(a, b)), a, b, add);
+  }
+  // Witness of a pair whose shard (PairTracker::ShardOf) the caller knows.
+  void WitnessIn(size_t shard, uint32_t a, uint32_t b, bool add) {
+    const uint64_t p = HandlePair(a, b);
+    FlatMap<uint64_t, uint32_t>& extra = extra_[shard];
     if (recount_) {
       // Rebuilding after a resize: the tracker already holds the pair set; count only.
       BP_ASSERT(add && tracker_.Contains(a, b));
-      if (!recount_seen_.Insert(p)) ++extra_.FindOrInsert(p, 0);
+      if (!recount_seen_.Insert(p)) ++extra.FindOrInsert(p, 0);
       return;
     }
     if (add) {
-      if (!tracker_.Add(a, b)) ++extra_.FindOrInsert(p, 0);
+      if (!tracker_.AddIn(shard, a, b)) ++extra.FindOrInsert(p, 0);
       return;
     }
-    if (uint32_t* e = extra_.Find(p)) {
-      if (--*e == 0) extra_.Erase(p);
+    if (uint32_t* e = extra.Find(p)) {
+      if (--*e == 0) extra.Erase(p);
       return;
     }
-    bool removed = tracker_.Remove(a, b);
+    bool removed = tracker_.RemoveIn(shard, a, b);
     BP_ASSERT(removed);
     (void)removed;
   }
@@ -1290,7 +1342,7 @@ class GridCore {
     defer_locals_ = true;
     refs_.clear();
     for (auto& list : free_refs_) list.clear();
-    extra_.Clear();
+    for (auto& extra : extra_) extra.Clear();
     SetCellSize(sizing.size, sizing.middle);
     recount_ = true;
     for (uint32_t h = 0; h < objects_.size(); ++h) {
@@ -1375,26 +1427,32 @@ class GridCore {
     bool touched = false;
   };
   HugeVector<CellWork> cell_work_;
-  // What applying a cell leaves for the fold (by position in touched_): its changes, as global
-  // handle pairs in witnessed_[thread][begin, begin + count), its counters, and whether it emptied.
+  // What applying a cell leaves for the fold: its changes, as global handle pairs tagged with
+  // the cell's position in touched_ (Witnessed, in witnessed_), and by that position
+  // (CellOut) its counters and whether it emptied.
   struct Witnessed {
     uint32_t a, b;
+    uint32_t cell;  // the index in touched_ of the cell that saw the change
     bool now;
   };
   struct CellOut {
-    uint32_t thread = 0;
-    uint32_t begin = 0, count = 0;
     bool global_sort = false, emptied = false;
     size_t swaps = 0, tests = 0;
   };
-  std::vector<std::vector<Witnessed>> witnessed_;  // per pool thread
+  // Per pool thread and shard of the tracker: witnessed_[thread * shards + shard].
+  std::vector<std::vector<Witnessed>> witnessed_;
+  // Threads whose buffers FoldShard merges; threads() is capped to it (see the constructor).
+  static constexpr size_t kMaxMergedThreads = 256;
   std::vector<CellOut> cell_out_;
   std::vector<Large> large_;
   std::vector<uint32_t> free_large_;
   std::vector<uint32_t> changed_large_;
   size_t large_count_ = 0;
   PairTracker tracker_;
-  FlatMap<uint64_t, uint32_t> extra_;  // witnesses beyond the first
+  // Witnesses beyond the first, by shard of the tracker; line-aligned, as the folding threads
+  // write their shards' headers.
+  struct alignas(64) Extra : FlatMap<uint64_t, uint32_t> {};
+  std::vector<Extra> extra_;
   bool recount_ = false;
   FlatSet<uint64_t> recount_seen_;
   // Scratch of the large-object paths.

@@ -607,8 +607,8 @@ class SegmentedSapCore {
       }
     }
     std::vector<uint64_t> gone;
-    tracker_.overlap_set().ForEach([&](uint64_t p) {
-      if (!now.Contains(p)) gone.push_back(p);
+    tracker_.ForEachOverlap([&](uint32_t a, uint32_t b) {
+      if (!now.Contains(HandlePair(a, b))) gone.push_back(HandlePair(a, b));
     });
     for (uint64_t p : gone) tracker_.Remove(PairFirst(p), PairSecond(p));
     now.ForEach([&](uint64_t p) { tracker_.Add(PairFirst(p), PairSecond(p)); });

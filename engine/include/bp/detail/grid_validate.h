@@ -143,11 +143,13 @@ Status GridCore<Cell>::Validate() const {
   bool ok = true;
   count.ForEach([&](uint64_t p, uint32_t n) {
     ok = ok && tracker_.Contains(PairFirst(p), PairSecond(p));
-    const uint32_t* e = extra_.Find(p);
+    const uint32_t* e = extra_[tracker_.ShardOf(p)].Find(p);
     ok = ok && (n == 1 ? e == nullptr : (e != nullptr && *e == n - 1));
     multi += n > 1;
   });
-  if (!ok || count.size() != tracker_.overlaps() || multi != extra_.size()) {
+  size_t extras = 0;
+  for (const auto& extra : extra_) extras += extra.size();
+  if (!ok || count.size() != tracker_.overlaps() || multi != extras) {
     return fail("witness counts differ from the cells");
   }
   std::vector<BoxType> boxes(objects_.size());

@@ -4,13 +4,18 @@
 // that fail Accepts, so filtered pairs never enter any set. The cores test the boxes first: in
 // their hot paths the box test usually fails, and it reads memory they touch anyway.
 //
-// Thread safety: none; owned by one engine.
-// Invariants:
-//  1. overlaps_ holds exactly the overlapping pairs of the current boxes (when a core is idle).
-//  2. A pair is in changed_ iff its membership in overlaps_ differs from that at the last Drain.
-//  3. Every pair in overlaps_ passes Accepts.
-//  4. Every pair in changed_ has an entry in toggled_; its first entry there since the last
+// The sets may be split into shards by a hash of the pair (SetShards; one by default), so that
+// the grid's threads fold their cells' changes side by side, each into its own shards.
+//
+// Thread safety: none; owned by one engine. Add and Remove of pairs in different shards
+// (ShardOf) may run concurrently, while nothing else is called (options are only read).
+// Invariants (per shard, for the pairs of that shard):
+//  1. overlaps holds exactly the overlapping pairs of the current boxes (when a core is idle).
+//  2. A pair is in changed iff its membership in overlaps differs from that at the last Drain.
+//  3. Every pair in overlaps passes Accepts.
+//  4. Every pair in changed has an entry in toggled; its first entry there since the last
 //     Drain records the direction of the pair's first toggle since then.
+//  5. Every pair lies in shard ShardOf(pair); there are 2^shard_bits_ shards.
 #pragma once
 
 #include <algorithm>
@@ -18,6 +23,7 @@
 #include <cstdint>
 #include <vector>
 
+#include "bp/detail/assert.h"
 #include "bp/detail/flat_set.h"
 #include "bp/object_options.h"
 
@@ -60,23 +66,50 @@ class OptionsTable {
 
 class PairTracker {
  public:
+  /// Splits the sets into 2^bits shards (at most 2^6); only while no pair is tracked.
+  void SetShards(unsigned bits) {
+    BP_ASSERT(overlaps() == 0 && pending_changes() == 0);
+    shard_bits_ = std::min(bits, 6u);
+    more_.clear();
+    more_.resize((size_t{1} << shard_bits_) - 1);
+  }
+  size_t shards() const { return more_.size() + 1; }
+  /// The shard of pair p: the top bits of a multiplicative hash whose multiplier differs from
+  /// the sets' own (FlatSet places p by the top bits of p * 0x9E3779B97F4A7C15, which within
+  /// a shard of those same bits would leave half the table's homes unused).
+  size_t ShardOf(uint64_t p) const {
+    return shard_bits_ == 0
+               ? 0
+               : static_cast<size_t>((p * 0xD6E8FEB86659FD93ULL) >> (64 - shard_bits_));
+  }
+
   /// Records that a and b overlap (idempotent); true if they did not before. A pair that fails
   /// Accepts is not recorded (false).
-  bool Add(uint32_t a, uint32_t b) {
-    if (!Accepts(a, b)) return false;
-    uint64_t p = HandlePair(a, b);
-    if (!overlaps_.Insert(p)) return false;
-    Toggle(p, true);
-    return true;
-  }
+  bool Add(uint32_t a, uint32_t b) { return AddIn(ShardOf(HandlePair(a, b)), a, b); }
   /// Records that a and b do not overlap (idempotent); true if they did before.
-  bool Remove(uint32_t a, uint32_t b) {
-    uint64_t p = HandlePair(a, b);
-    if (!overlaps_.Erase(p)) return false;
-    Toggle(p, false);
+  bool Remove(uint32_t a, uint32_t b) { return RemoveIn(ShardOf(HandlePair(a, b)), a, b); }
+  /// Add and Remove for a caller that knows the pair's shard (ShardOf).
+  bool AddIn(size_t shard, uint32_t a, uint32_t b) {
+    if (!Accepts(a, b)) return false;
+    const uint64_t p = HandlePair(a, b);
+    BP_ASSERT(shard == ShardOf(p));
+    Shard& sh = At(shard);
+    if (!sh.overlaps.Insert(p)) return false;
+    Toggle(sh, p, true);
     return true;
   }
-  bool Contains(uint32_t a, uint32_t b) const { return overlaps_.Contains(HandlePair(a, b)); }
+  bool RemoveIn(size_t shard, uint32_t a, uint32_t b) {
+    const uint64_t p = HandlePair(a, b);
+    BP_ASSERT(shard == ShardOf(p));
+    Shard& sh = At(shard);
+    if (!sh.overlaps.Erase(p)) return false;
+    Toggle(sh, p, false);
+    return true;
+  }
+  bool Contains(uint32_t a, uint32_t b) const {
+    const uint64_t p = HandlePair(a, b);
+    return At(ShardOf(p)).overlaps.Contains(p);
+  }
 
   /// Sets the options of handle h (before any of its pairs is added). Default options cost
   /// nothing until some handle has non-default ones.
@@ -89,55 +122,80 @@ class PairTracker {
   bool Accepts(uint32_t a, uint32_t b) const { return options_.Accepts(a, b); }
 
   /// Calls f(a, b, overlapping_now) for every pair changed since the last drain, then forgets
-  /// them. O(toggles since the last drain): the section 3.3 bound, whatever earlier queries did.
-  /// A pair is in changed_ iff it toggled an odd number of times since the last drain, and its
-  /// first entry in toggled_ is that of its first toggle: toggles alternate (Add only when it
-  /// was absent, Remove only when present), so the first's direction is the state now, and
-  /// overlaps_ need not be probed. changed_'s lines are prefetched ahead (pairs come in toggle
-  /// order, all over the table).
+  /// them, shard by shard. O(toggles since the last drain): the section 3.3 bound, whatever
+  /// earlier queries did. A pair is in changed iff it toggled an odd number of times since the
+  /// last drain, and its first entry in toggled is that of its first toggle: toggles alternate
+  /// (Add only when it was absent, Remove only when present), so the first's direction is the
+  /// state now, and overlaps need not be probed. changed's lines are prefetched ahead (pairs
+  /// come in toggle order, all over the table).
   template <class F>
   void DrainChanges(F&& f) {
-    const size_t n = toggled_.size();
-    for (size_t i = 0; i < n; ++i) {
-      if (i + kDrainAhead < n)
-        __builtin_prefetch(changed_.HomeLine(toggled_[i + kDrainAhead].pair));
-      const Toggled& t = toggled_[i];
-      // A pair toggled back to its old state is no longer in changed_ (or was reported already).
-      if (changed_.Erase(t.pair, /*shrink=*/false)) f(PairFirst(t.pair), PairSecond(t.pair), t.now);
+    for (size_t s = 0; s < shards(); ++s) {
+      Shard& sh = At(s);
+      const size_t n = sh.toggled.size();
+      for (size_t i = 0; i < n; ++i) {
+        if (i + kDrainAhead < n)
+          __builtin_prefetch(sh.changed.HomeLine(sh.toggled[i + kDrainAhead].pair));
+        const Toggled& t = sh.toggled[i];
+        // A pair toggled back to its old state is no longer in changed (or was reported).
+        if (sh.changed.Erase(t.pair, /*shrink=*/false)) {
+          f(PairFirst(t.pair), PairSecond(t.pair), t.now);
+        }
+      }
+      sh.changed.ShrinkToFit(n);
+      sh.toggled.clear();
+      // Memory held after a burst is given back; a steady rate of toggles keeps its buffer.
+      if (sh.toggled.capacity() > std::max<size_t>(4096, 4 * n)) sh.toggled.shrink_to_fit();
     }
-    changed_.ShrinkToFit(n);
-    toggled_.clear();
-    // Memory held after a burst is given back; a steady rate of toggles keeps its buffer.
-    if (toggled_.capacity() > std::max<size_t>(4096, 4 * n)) toggled_.shrink_to_fit();
   }
   /// Calls f(a, b) for every overlapping pair.
   template <class F>
   void ForEachOverlap(F&& f) const {
-    overlaps_.ForEach([&](uint64_t p) { f(PairFirst(p), PairSecond(p)); });
+    for (size_t s = 0; s < shards(); ++s) {
+      At(s).overlaps.ForEach([&](uint64_t p) { f(PairFirst(p), PairSecond(p)); });
+    }
   }
   /// Where Add or Remove of pair p starts probing the overlap set and the changed set (nullptr
   /// when empty), for the caller to prefetch a few pairs ahead.
-  const void* OverlapLine(uint64_t p) const { return overlaps_.HomeLine(p); }
-  const void* ChangedLine(uint64_t p) const { return changed_.HomeLine(p); }
-  size_t overlaps() const { return overlaps_.size(); }
-  size_t pending_changes() const { return changed_.size(); }
-  const FlatSet<uint64_t>& overlap_set() const { return overlaps_; }
+  const void* OverlapLine(uint64_t p) const { return At(ShardOf(p)).overlaps.HomeLine(p); }
+  const void* ChangedLine(uint64_t p) const { return At(ShardOf(p)).changed.HomeLine(p); }
+  size_t overlaps() const {
+    size_t n = 0;
+    for (size_t s = 0; s < shards(); ++s) n += At(s).overlaps.size();
+    return n;
+  }
+  size_t pending_changes() const {
+    size_t n = 0;
+    for (size_t s = 0; s < shards(); ++s) n += At(s).changed.size();
+    return n;
+  }
 
  private:
   struct Toggled {
     uint64_t pair;
     bool now;  // overlapping after this toggle
   };
+  // Line-aligned: two threads folding two shards write their sets' headers (size, table).
+  struct alignas(64) Shard {
+    FlatSet<uint64_t> overlaps;
+    FlatSet<uint64_t> changed;     // pairs whose state differs from the last drain
+    std::vector<Toggled> toggled;  // every entry of a pair into changed since the last drain
+  };
   static constexpr size_t kDrainAhead = 16;
 
-  void Toggle(uint64_t p, bool now) {
-    if (!changed_.Erase(p) && changed_.Insert(p)) toggled_.push_back(Toggled{p, now});
+  static void Toggle(Shard& sh, uint64_t p, bool now) {
+    if (!sh.changed.Erase(p) && sh.changed.Insert(p)) sh.toggled.push_back(Toggled{p, now});
   }
 
-  FlatSet<uint64_t> overlaps_;
+  // Shard 0 lives in the tracker itself, the others (if any) in more_: the cores of one thread,
+  // and the grid's SAP cells (a tracker each), pay no indirection and no allocation.
+  Shard& At(size_t shard) { return shard == 0 ? first_ : more_[shard - 1]; }
+  const Shard& At(size_t shard) const { return shard == 0 ? first_ : more_[shard - 1]; }
+
   OptionsTable options_;
-  FlatSet<uint64_t> changed_;     // pairs whose state differs from the last drain
-  std::vector<Toggled> toggled_;  // every entry of a pair into changed_ since the last drain
+  unsigned shard_bits_ = 0;
+  Shard first_;
+  std::vector<Shard> more_;
 };
 
 }  // namespace bp::detail
