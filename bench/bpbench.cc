@@ -57,6 +57,7 @@ struct Config {
   uint32_t max_cells = bp::GridSegmentedSapOptions().max_cells_per_object;
   unsigned threads = 1;                // grid engines
   int64_t parallel_routing_from = -1;  // grid engines: < 0 the engine's default
+  bool no_parallel_lookups = false;    // grid engines: the front end looks keys up serially
   std::string kernel = "auto";  // grid_dense: "auto" (the widest the CPU has), "avx512", "avx2" or
                                 // "portable" (a kernel the CPU lacks falls back to a narrower one)
   uint32_t big_boxes = 0;       // static boxes of big_width cube widths added to the scene
@@ -154,6 +155,7 @@ GridOptions MakeGridOptions(const Config& cfg, const decltype(GridOptions::cell)
   options.threads = cfg.threads;
   if (cfg.parallel_routing_from >= 0)
     options.parallel_routing_from = static_cast<size_t>(cfg.parallel_routing_from);
+  options.parallel_lookups = !cfg.no_parallel_lookups;
   options.cell = cell;
   return options;
 }
@@ -380,6 +382,7 @@ void PrintJson(const std::string& scenario, const SceneParams& p, int frames, co
       << ",\"threads\":" << cfg.threads << ",\"parallel_routing_from\":"
       << (cfg.parallel_routing_from >= 0 ? static_cast<size_t>(cfg.parallel_routing_from)
                                          : bp::GridDenseOptions().parallel_routing_from)
+      << ",\"parallel_lookups\":" << (cfg.no_parallel_lookups ? "false" : "true")
       << ",\"cells\":" << r.last.cells << ",\"large_objects\":" << r.last.large_objects;
   }
   if (cfg.engine == "grid_dense") {
@@ -760,6 +763,9 @@ int main(int argc, char** argv) {
                  "grid engines with --threads above 1: route a query's updates in parallel from "
                  "this many (0: never; default: the engine's)")
       ->check(CLI::Range(int64_t{0}, int64_t{1} << 40));
+  app.add_flag("--no-parallel-lookups", cfg.no_parallel_lookups,
+               "grid engines with --threads above 1: look up the keys of a large UpdateMany or "
+               "EraseMany on the caller's thread only (as the daemon does)");
   app.add_option("--max-cells", cfg.max_cells,
                  "grid engines: cells an object may cover before it is kept as a large object")
       ->check(CLI::Range(1u, 1000000u))

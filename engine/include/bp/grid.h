@@ -102,6 +102,10 @@ struct GridOptions {
   /// UpdateMany or EraseMany of at least this many items looks their keys up in parallel
   /// (below, waking the workers costs more than it saves); 0 never does either.
   size_t parallel_routing_from = 4096;
+  /// With threads > 1, a large UpdateMany or EraseMany (as many items as above) looks its keys
+  /// up on every thread first (the front end's calls 0.84x on S1-200k, S3 and S1-1M). The
+  /// daemon turns it off: its update→event p99 measured lower without (see README).
+  bool parallel_lookups = true;
   /// Options of every cell.
   CellOptions cell{};
 };
@@ -172,6 +176,10 @@ class GridCore {
   WorkerPool* PoolFor(size_t n) const {
     if (pool_ == nullptr || options_.parallel_routing_from == 0) return nullptr;
     return n >= std::max<size_t>(options_.parallel_routing_from, 2) ? pool_.get() : nullptr;
+  }
+  /// PoolFor for the front end's look-ups of n keys: nullptr unless options().parallel_lookups.
+  WorkerPool* LookupPoolFor(size_t n) const {
+    return options_.parallel_lookups ? PoolFor(n) : nullptr;
   }
 
   void FillStats(Stats* out) const {

@@ -550,19 +550,21 @@ class KeyedEngine final : public Broadphase<Core::kDim, typename Core::Coord, Ke
   }
 
   // As ForEachAhead, with the keys looked up first, in parallel, when the core lends a worker
-  // pool for this many items. The look-ups (a key-index line and a slot per item, both cache
-  // misses in a large scene) read only index_ and slots_, so the pool's threads share them
-  // (each run through ForEachAhead, storing tag and handle in resolved_); apply then runs for
-  // every item in order on this thread, with the handle found as its hint and the slots
-  // prefetched from the handles, kAhead items ahead. A hint is dropped once the index changed
-  // (an erase of a pending insert): Lookup then searches, as without a hint. The slots are
-  // prefetched for writing: the look-ups left them shared with the other thread's cache, and
-  // the first store to each then waited for the line (perf: 37% of UpdateTagged on one store).
+  // pool for this many look-ups (LookupPoolFor). The look-ups (a key-index line and a slot per
+  // item, both cache misses in a large scene) read only index_ and slots_, so the pool's
+  // threads share them (each run through ForEachAhead, storing tag and handle in resolved_);
+  // apply then runs for every item in order on this thread, with the handle found as its hint
+  // and the slots prefetched from the handles, kAhead items ahead. A hint is dropped once the
+  // index changed (an erase of a pending insert): Lookup then searches, as without a hint. The
+  // slots are prefetched for writing: the look-ups left them shared with the other thread's
+  // cache, and the first store to each then waited for the line (perf: 37% of UpdateTagged on
+  // one store).
   template <class Item, class KeyOf, class Apply>
   size_t ForEachResolved(std::span<const Item> items, KeyOf&& key_of,
                          const typename Base::RefusedFn& refused, Apply&& apply) {
     const size_t n = items.size();
-    WorkerPool* pool = PoolFor(n);
+    WorkerPool* pool = nullptr;
+    if constexpr (requires(const Core& c) { c.LookupPoolFor(n); }) pool = core_.LookupPoolFor(n);
     if (pool == nullptr) return ForEachAhead(items, key_of, refused, apply);
     resolved_.resize(n);
     pool->ParallelFor(n, kResolveRun, [&](size_t begin, size_t end, unsigned) {
