@@ -540,7 +540,7 @@ class KeyedEngine final : public Broadphase<Core::kDim, typename Core::Coord, Ke
     }
   }
 
-  // The core's worker pool if it has one and a loop over n look-ups is worth waking it for.
+  // The core's worker pool if it has one and a loop over n light items is worth waking it for.
   WorkerPool* PoolFor(size_t n) const {
     if constexpr (requires(const Core& c) { c.PoolFor(n); }) {
       return core_.PoolFor(n);
