@@ -95,8 +95,8 @@ struct GridOptions {
   double objects_per_cell = kDefaultObjectsPerCell<CellOptions>;
   /// An object whose box would cover more cells than this is kept in the large set instead.
   uint32_t max_cells_per_object = 16;
-  /// Threads that apply the touched cells of a query (the caller's included; 1 to 256). Events do
-  /// not depend on it: cells are independent, and their changes are folded in one fixed order.
+  /// Threads that apply the touched cells of a query (the caller's included). Events do not
+  /// depend on it: cells are independent, and their changes are folded in one fixed order.
   unsigned threads = 1;
   /// With threads > 1, a query with at least this many updates routes them in parallel, and an
   /// UpdateMany or EraseMany of at least this many items looks their keys up in parallel
@@ -128,7 +128,7 @@ class GridCore {
     if (!(options_.objects_per_cell >= 1)) options_.objects_per_cell = 1;
     if (options_.cell_size > 0 && std::isfinite(options_.cell_size))
       SetCellSize(options_.cell_size);
-    options_.threads = std::clamp<unsigned>(options_.threads, 1, kMaxMergedThreads);
+    options_.threads = std::max(options_.threads, 1u);
     if (options_.threads > 1) {
       pool_ = std::make_unique<WorkerPool>(options_.threads);
       // One shard of the pair sets per thread (rounded up to a power of two): see FoldCells.
@@ -1101,22 +1101,20 @@ class GridCore {
     static constexpr size_t kFoldAhead = 16;
     const size_t shards = tracker_.shards();
     const size_t threads = witnessed_.size() / shards;
-    // A cursor over the merged buffers: (thread, position) of the next change in cell order.
-    struct Cursor {
-      std::array<size_t, kMaxMergedThreads> at{};
-    };
-    auto next = [&](Cursor& c) -> const Witnessed* {
+    // A cursor over the merged buffers (a position in each thread's): next returns the change
+    // of the lowest cell.
+    auto next = [&](std::vector<size_t>& at_of) -> const Witnessed* {
       const Witnessed* best = nullptr;
       size_t best_t = 0;
       for (size_t t = 0; t < threads; ++t) {
         const std::vector<Witnessed>& buf = witnessed_[t * shards + shard];
-        const size_t at = c.at[t];  // t < kMaxMergedThreads: threads are capped to it
+        const size_t at = at_of[t];
         if (at < buf.size() && (best == nullptr || buf[at].cell < best->cell)) {
           best = &buf[at];
           best_t = t;
         }
       }
-      if (best != nullptr) ++c.at[best_t];
+      if (best != nullptr) ++at_of[best_t];
       return best;
     };
     if (threads == 1) {
@@ -1128,7 +1126,7 @@ class GridCore {
       }
       return;
     }
-    Cursor ahead, here;
+    std::vector<size_t> ahead(threads, 0), here(threads, 0);
     for (size_t k = 0; k < kFoldAhead; ++k) {
       if (const Witnessed* w = next(ahead)) BP_GRID_PREFETCH_WITNESS(w);
     }
@@ -1460,8 +1458,6 @@ class GridCore {
   };
   // Per pool thread and shard of the tracker: witnessed_[thread * shards + shard].
   std::vector<std::vector<Witnessed>> witnessed_;
-  // Threads whose buffers FoldShard merges; threads() is capped to it (see the constructor).
-  static constexpr size_t kMaxMergedThreads = 256;
   std::vector<CellOut> cell_out_;
   std::vector<Large> large_;
   std::vector<uint32_t> free_large_;
