@@ -56,7 +56,10 @@ Status GridCore<Cell>::Validate() const {
     return fail("work left after a query");
   }
   for (const Shard& sh : shards_) {
-    if (!sh.routed.empty() || !sh.touched.empty() || !sh.deferred.empty() ||
+    const auto has_work = [](const auto& by_part) {
+      return std::any_of(by_part.begin(), by_part.end(), [](const auto& v) { return !v.empty(); });
+    };
+    if (has_work(sh.routed) || has_work(sh.touched) || !sh.deferred.empty() ||
         std::any_of(sh.counts.begin(), sh.counts.end(), [](uint32_t c) { return c != 0; })) {
       return fail("routing shard left with work after a query");
     }
