@@ -993,9 +993,10 @@ class GridCore {
   // advanced). Above kWorkInCache cells, cells and cursors lie all over a work table larger
   // than the L2: the cursor's line is prefetched 16 updates ahead, then the line the cursor
   // points at 8 ahead, for writing (below, the prefetches measured a cost: S1-200k's cells
-  // phase 1.06). Serial: with the shards' updates scattered by two pool threads (by shard, or
-  // by halves of grouped_) this took as long on S1-1M as on one thread, or longer (2026-11-26,
-  // session 37).
+  // phase 1.06). Called per part of the cells (ScatterPart): session 37's split of the
+  // scatter by shard or by halves of grouped_ took as long on S1-1M as one thread, or longer,
+  // where the routing's per-part lists give each thread its own cells' updates alone (two
+  // threads 1.56x, session 40).
   void ScatterRouted(const HugeVector<Routed>& v) {
     const size_t n = v.size();
     const Routed* r = v.data();
