@@ -585,27 +585,34 @@ class KeyedEngine final : public Broadphase<Core::kDim, typename Core::Coord, Ke
   }
 
   // UpdateManyOn's parts: the entries and deferred lists for n items (returns the runs), the
-  // claims of items [begin, end) (a run: begin is a multiple of kResolveRun), and the ordered
-  // pass. A white-box test runs the runs in another order (KeyedEngineTestPeer).
+  // claims of items [begin, end) (begin a multiple of kResolveRun), and the ordered pass. A
+  // white-box test runs the runs in another order (KeyedEngineTestPeer).
   size_t BeginClaims(size_t n) {
     updates_.resize(updates_.size() + n);
     const size_t runs = (n + kResolveRun - 1) / kResolveRun;
     if (deferred_.size() < runs) deferred_.resize(runs);
+    for (size_t r = 0; r < runs; ++r) {
+      deferred_[r].clear();
+      deferred_[r].reserve(kResolveRun);  // no allocation on the pool's threads
+    }
     return runs;
   }
+  // Claims items [begin, end) run by run (a pool without workers hands over [0, n) at once).
   void ClaimRun(std::span<const typename Base::Item> items, size_t base, size_t begin, size_t end) {
-    std::vector<uint32_t>& deferred = deferred_[begin / kResolveRun];
-    deferred.clear();
     const auto key_of = [](const typename Base::Item& item) -> const Key& { return item.key; };
-    ForEachAhead(items.subspan(begin, end - begin), key_of, nullptr,
-                 [&](size_t i, uint32_t tag, uint32_t hint) {
-                   const size_t at = begin + i;
-                   if (!ClaimUpdate(items[at], tag, hint, base + at)) {
-                     updates_[base + at].handle = kNoHandle;
-                     deferred.push_back(static_cast<uint32_t>(at));
-                   }
-                   return Status::Ok();
-                 });
+    for (size_t from = begin; from < end; from += kResolveRun) {
+      const size_t to = std::min(end, from + kResolveRun);
+      std::vector<uint32_t>& deferred = deferred_[from / kResolveRun];
+      ForEachAhead(items.subspan(from, to - from), key_of, nullptr,
+                   [&](size_t i, uint32_t tag, uint32_t hint) {
+                     const size_t at = from + i;
+                     if (!ClaimUpdate(items[at], tag, hint, base + at)) {
+                       updates_[base + at].handle = kNoHandle;
+                       deferred.push_back(static_cast<uint32_t>(at));
+                     }
+                     return Status::Ok();
+                   });
+    }
   }
   size_t EndClaims(std::span<const typename Base::Item> items, size_t base, size_t runs,
                    const typename Base::RefusedFn& refused) {
