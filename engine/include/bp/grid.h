@@ -240,9 +240,9 @@ class GridCore {
   // One run of a parallel routing: its updates that stay in their cells and the cells it
   // touched, each by part of the cells (PartOf), their counts by cell index (zero outside
   // touched), and the updates left for the serial pass (indices into the query's updates).
-  // Two lines apart: the threads push to their shards'
-  // vectors at once, and with the shards' headers sharing a line, 11% of the routing's samples
-  // waited on it (perf, S1-1M, two threads).
+  // Two lines apart: the threads push to their shards' vectors at once, and with the shards'
+  // headers sharing a line, 11% of the routing's samples waited on it (perf, S1-1M, two
+  // threads).
   struct alignas(128) Shard {
     std::vector<HugeVector<Routed>> routed;      // by part
     std::vector<std::vector<uint32_t>> touched;  // by part
@@ -758,9 +758,9 @@ class GridCore {
   // only the updated objects' boxes and the shard: the updates name distinct objects.
   void RouteRun(std::span<const HandleBox<kDim, Coord>> updates, size_t begin, size_t end,
                 Shard& sh) {
-    // The counts were last read and zeroed by the caller's thread (GroupUpdates): each line is a
-    // miss to the other core's cache, met at random. All are requested for writing at once
-    // first (S1-1M: 32 768 cells, 2 048 lines; 8% of the routing's samples waited on them),
+    // The counts were last read and zeroed by whichever thread merged their part (MergeCounts):
+    // a line is then a miss to the other core's cache, met at random. All are requested for writing
+    // at once first (S1-1M: 32 768 cells, 2 048 lines; 8% of the routing's samples waited on them),
     // unless they outnumber the run's updates (then most lines are not touched).
     const char* counts = reinterpret_cast<const char*>(sh.counts.data());
     const size_t counts_bytes = sh.counts.size() * sizeof(uint32_t);

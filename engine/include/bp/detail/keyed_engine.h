@@ -694,20 +694,20 @@ class KeyedEngine final : public Broadphase<Core::kDim, typename Core::Coord, Ke
   }
 
   // UpdateTagged for a deferred item of UpdateManyOn whose entry was updates_[entry]: skipped
-  // (Ok) if a later item of the batch (entries [base, end)) staged its key in parallel.
+  // (Ok) if a later item of the batch (entries [base, end)) staged its key in parallel. The
+  // handle found is UpdateTagged's hint (one probe of the index).
   Status UpdateDeferred(const typename Base::Item& item, size_t base, size_t entry, size_t end) {
-    if (IsValidBox(item.box)) {
-      const uint32_t h = Find(item.key);
-      if (h != kNoHandle) {
-        const Slot& slot = slots_[h];
-        if (PendingOf(slot) == Pending::kUpdate && slot.stage >= base && slot.stage < end &&
-            slot.stage > entry) {
-          skipped_.push_back({static_cast<uint32_t>(entry - base), slot.stage});
-          return Status::Ok();
-        }
+    const uint32_t tag = KeyIndex<Key>::Tag(item.key);
+    const uint32_t h = Lookup(item.key, tag, kNoHandle);
+    if (h != kNoHandle && IsValidBox(item.box)) {
+      const Slot& slot = slots_[h];
+      if (PendingOf(slot) == Pending::kUpdate && slot.stage >= base && slot.stage < end &&
+          slot.stage > entry) {
+        skipped_.push_back({static_cast<uint32_t>(entry - base), slot.stage});
+        return Status::Ok();
       }
     }
-    return UpdateTagged(item.key, KeyIndex<Key>::Tag(item.key), item.box, kNoHandle);
+    return UpdateTagged(item.key, tag, item.box, h);
   }
 
   // As ForEachAhead, with the keys looked up first, in parallel, when the core lends a worker
@@ -724,8 +724,7 @@ class KeyedEngine final : public Broadphase<Core::kDim, typename Core::Coord, Ke
   size_t ForEachResolved(std::span<const Item> items, KeyOf&& key_of,
                          const typename Base::RefusedFn& refused, Apply&& apply) {
     const size_t n = items.size();
-    WorkerPool* pool = nullptr;
-    if constexpr (requires(const Core& c) { c.LookupPoolFor(n); }) pool = core_.LookupPoolFor(n);
+    WorkerPool* pool = LookupPool(n);
     if (pool == nullptr) return ForEachAhead(items, key_of, refused, apply);
     resolved_.resize(n);
     pool->ParallelFor(n, kResolveRun, [&](size_t begin, size_t end, unsigned) {
