@@ -54,6 +54,7 @@
 #include <bit>
 #include <cmath>
 #include <cstdint>
+#include <functional>
 #include <limits>
 #include <memory>
 #include <span>
@@ -154,8 +155,10 @@ class GridCore {
     phase_ = Stopwatch();
     route_ms_ = cells_ms_ = fold_ms_ = 0;
     EraseObjects(erases);
-    RouteUpdates(updates);
-    InsertObjects(inserts);
+    if (!RouteOnPool(updates, inserts)) {
+      RouteUpdates(updates);
+      InsertObjects(inserts);
+    }
     for (uint32_t l : changed_large_) {
       large_[l].changed = false;
       if (large_[l].handle != kNone) Rescan(l);
@@ -165,6 +168,19 @@ class GridCore {
     QueryCells();
     live_ = live_ + inserts.size() - erases.size();
     MaybeResize();
+  }
+
+  /// Apply that runs beside() once on the pool, as one more task among the cells' applies, when
+  /// the grid has a pool (then returns true), else not at all (false: the caller runs it).
+  /// beside must touch nothing of the grid's; the front end commits its erased keys with it.
+  static constexpr bool kAppliesBeside = true;
+  bool Apply(std::span<const uint32_t> erases, std::span<const HandleBox<kDim, Coord>> updates,
+             std::span<const HandleBox<kDim, Coord>> inserts, const std::function<void()>& beside) {
+    beside_ = &beside;
+    beside_ran_ = false;
+    Apply(erases, updates, inserts);
+    beside_ = nullptr;
+    return beside_ran_;
   }
 
   PairTracker& tracker() { return tracker_; }
@@ -219,6 +235,9 @@ class GridCore {
   // Touched cells a pool thread claims at a time: long enough runs to prefetch the next cell
   // within, short enough to balance uneven cells.
   static constexpr size_t kCellRun = 32;
+  // A parallel routing's parts of the cells per thread (see RouteOnPool): more than one, so that
+  // the thread done first with the serial pass or a part can take another part.
+  static constexpr size_t kPartsPerThread = 2;
   // How far ahead of the cell being applied its successors' records and arrays are prefetched.
   static constexpr size_t kRecordAhead = 4, kArraysAhead = 2;
   // Cells whose work entries (CellWork) fill about 256 KiB, half an L2 of this project's Zen 3:
@@ -522,7 +541,9 @@ class GridCore {
     LeaveCells(h);
   }
 
-  void UpdateObject(uint32_t h, const BoxType& box) {
+  // kept_routed: h stays small and migrates, and its updates in the cells it keeps were routed
+  // (RouteRun).
+  void UpdateObject(uint32_t h, const BoxType& box, bool kept_routed = false) {
     Object& o = objects_[h];
     BP_ASSERT(o.state == State::kLive);
     const BoxType before = objects_[h].box;
@@ -539,6 +560,7 @@ class GridCore {
       hi[a] = u;
     }
     bool large_now = CellCount(lo, hi) > options_.max_cells_per_object;
+    BP_ASSERT(!kept_routed || (o.large == kNone && !large_now));
     if (o.large != kNone) {
       if (large_now) {
         MoveLarge(o.large, lo, hi);
@@ -568,10 +590,11 @@ class GridCore {
       BeginLargeCandidates();
       AddLargeCandidates(h);
     }
+    BP_ASSERT(!kept_routed || !same_range);
     if (same_range) {
       for (uint32_t i = 0; i < o.nrefs; ++i) RouteUpdate(refs_[o.refs + i], box);
     } else {
-      Migrate(h, lo, hi);
+      Migrate(h, lo, hi, kept_routed);
       if (with_large) AddLargeCandidates(h);
     }
     if (with_large) TestLargeCandidates(h, &before);
@@ -579,7 +602,8 @@ class GridCore {
 
   // A small object's new cell range differs: update it in the cells it keeps, insert it into
   // the new ones, erase it from the ones it left.
-  void Migrate(uint32_t h, const CellCoord& lo, const CellCoord& hi) {
+  // (kept_routed: the updates in the cells it keeps are routed already.)
+  void Migrate(uint32_t h, const CellCoord& lo, const CellCoord& hi, bool kept_routed = false) {
     const BoxType& box = objects_[h].box;
     const uint32_t n = static_cast<uint32_t>(CellCount(lo, hi));
     const uint32_t refs = AllocRefs(n);
@@ -589,7 +613,7 @@ class GridCore {
       CellRef ref;
       if (Space::Contains(o.lo, o.hi, c)) {
         ref = refs_[o.refs + Space::RowMajor(o.lo, o.hi, c)];
-        RouteUpdate(ref, box);
+        if (!kept_routed) RouteUpdate(ref, box);
       } else {
         ref = EnterCell(CellAt(c), h, refs + i, box);
       }
@@ -684,39 +708,54 @@ class GridCore {
   // Updates come in handle order, not memory order: the loads of each object's records miss the
   // cache, so they are prefetched a few updates ahead, in the order they depend on each other
   // (object and box, then its cell references). An update that stays in its cells touches no
-  // cell here: it is appended to routed_ (see RouteUpdate). With a pool and no large objects,
-  // the updates are cut into one run per thread and those that stay in their cells are routed
-  // in parallel into per-run shards (RouteRun); the rest follow serially, in order.
+  // cell here: it is appended to routed_ (see RouteUpdate). With a pool, see RouteOnPool.
   void RouteUpdates(std::span<const HandleBox<kDim, Coord>> updates) {
     const size_t n = updates.size();
-    if (large_count_ != 0 || PoolFor(n) == nullptr) {
-      routed_.reserve(n);
-      for (size_t i = 0; i < n; ++i) {
-        BP_GRID_PREFETCH_UPDATE(updates, i, n);
-        if (i + 4 < n && cell_work_.size() > kWorkInCache) {
-          // A third stage, when the work table outgrows the L2: the work entry of the object's
-          // first cell, which routing counts in (S1-1M's routing 0.91; on S3, whose table fits,
-          // the loads cost 5%).
-          const Object& ahead = objects_[updates[i + 4].handle];
-          if (ahead.nrefs != 0) Prefetch(&cell_work_[refs_[ahead.refs].cell]);
-        }
-        const auto& [h, box] = updates[i];
-        Object& o = objects_[h];
-        BP_ASSERT(o.state == State::kLive);
-        if (large_count_ == 0 && StaysInCells(o, box)) {
-          // Most updates: the box, and one routed update per cell, as UpdateObject would do
-          // (in about half its instructions: no new range, cell count or large-object checks).
-          o.box = box;
-          for (uint32_t k = 0; k < o.nrefs; ++k) RouteUpdate(refs_[o.refs + k], box);
-          continue;
-        }
-        UpdateObject(h, box);
+    routed_.reserve(n);
+    for (size_t i = 0; i < n; ++i) {
+      BP_GRID_PREFETCH_UPDATE(updates, i, n);
+      if (i + 4 < n && cell_work_.size() > kWorkInCache) {
+        // A third stage, when the work table outgrows the L2: the work entry of the object's
+        // first cell, which routing counts in (S1-1M's routing 0.91; on S3, whose table fits,
+        // the loads cost 5%).
+        const Object& ahead = objects_[updates[i + 4].handle];
+        if (ahead.nrefs != 0) Prefetch(&cell_work_[refs_[ahead.refs].cell]);
       }
-      return;
+      const auto& [h, box] = updates[i];
+      Object& o = objects_[h];
+      BP_ASSERT(o.state == State::kLive);
+      if (large_count_ == 0 && StaysInCells(o, box)) {
+        // Most updates: the box, and one routed update per cell, as UpdateObject would do
+        // (in about half its instructions: no new range, cell count or large-object checks).
+        o.box = box;
+        for (uint32_t k = 0; k < o.nrefs; ++k) RouteUpdate(refs_[o.refs + k], box);
+        continue;
+      }
+      UpdateObject(h, box);
     }
+  }
+
+  // The updates and inserts on the pool, when it has one worth waking for n updates and no
+  // large object exists (else false, and nothing is done):
+  //  1. The updates are cut into one run per thread, and routed in parallel into per-run
+  //     shards (RouteRun), by part of the cells (PartOf): those that stay in their cells
+  //     whole, those of migrating objects in the cells they keep.
+  //  2. The shards' counts are merged per part, in parallel (MergeCounts); this also brings
+  //     the touched cells' work entries into the caches, where the serial pass finds them (when
+  //     the merge ran beside that pass instead, the pass took 1.75 ms, not 1.05).
+  //  3. One task makes the serial pass, in order: the rest of the updates the runs left
+  //     (RouteDeferred), then the inserts. Beside it, the other thread scatters the shards'
+  //     updates by cell into grouped_shard_, part by part (ScatterShard), which the serial pass
+  //     never touches. On S1-1M (two threads) the pass takes about 1.05 ms and the scatter
+  //     0.65 beside it, where they took 1.1 and 0.55 one after the other.
+  // A cell's updates are then its shards', in run order.
+  bool RouteOnPool(std::span<const HandleBox<kDim, Coord>> updates,
+                   std::span<const HandleBox<kDim, Coord>> inserts) {
+    const size_t n = updates.size();
+    if (large_count_ != 0 || PoolFor(n) == nullptr) return false;
     const size_t runs = pool_->threads();
     const size_t grain = (n + runs - 1) / runs;
-    SetParts(runs);
+    SetParts(runs * kPartsPerThread);
     shards_.resize(runs);
     for (Shard& sh : shards_) {
       sh.counts.resize(cells_.size(), 0);
@@ -726,27 +765,54 @@ class GridCore {
     pool_->ParallelFor(n, grain, [&](size_t begin, size_t end, unsigned) {
       RouteRun(updates, begin, end, shards_[begin / grain]);
     });
-    // The shards' counts into the cells' work, one part per thread; then the deferred updates,
-    // serially.
+    // The shards' counts into shard_work_, one part per thread, marking the cells touched.
+    shard_work_.resize(cells_.size());
     part_touched_.resize(parts_);
+    part_base_.resize(parts_ + 1);
     pool_->ParallelFor(parts_, 1, [this](size_t begin, size_t end, unsigned) {
       for (size_t part = begin; part < end; ++part) MergeCounts(part);
     });
     for (const std::vector<uint32_t>& t : part_touched_)
       touched_.insert(touched_.end(), t.begin(), t.end());
+    // part_base_[p] holds part p's count of updates (MergeCounts): now where its run starts.
+    uint32_t total = 0;
+    for (size_t part = 0; part < parts_; ++part) total += std::exchange(part_base_[part], total);
+    part_base_[parts_] = total;
+    grouped_shard_.resize(total);
     pool_routed_ = n;
+    for (const Shard& sh : shards_) pool_routed_ -= sh.deferred.size();
+    pool_->ParallelFor(parts_ + 1, 1, [&](size_t begin, size_t end, unsigned) {
+      for (size_t task = begin; task < end; ++task) {
+        if (task == 0) {
+          RouteDeferred(updates);
+          InsertObjects(inserts);
+        } else {
+          ScatterShard(task - 1);
+        }
+      }
+    });
+    // Every update the serial pass met was a migration whose kept cells its run routed (or an
+    // object turned large, which leaves its cells): none was routed serially (see ApplyCell).
+    BP_ASSERT(routed_.empty());
+    shard_work_.resize(cells_.size());  // cells created by the serial pass: no shard updates
+    parts_ = 0;
+    return true;
+  }
+
+  // The updates the routing runs left, in order (migrations).
+  void RouteDeferred(std::span<const HandleBox<kDim, Coord>> updates) {
     for (Shard& sh : shards_) {
-      pool_routed_ -= sh.deferred.size();
       const std::vector<uint32_t>& d = sh.deferred;
       for (size_t k = 0; k < d.size(); ++k) {
         // Prefetched as in the serial loop: these objects lie all over the table, and without
         // it S1-1M's 3 400 deferred updates a frame took 1.0 ms, 0.7 with it.
-        if (k + 16 < d.size()) Prefetch(&objects_[updates[d[k + 16]].handle]);
+        if (k + 16 < d.size()) Prefetch(&objects_[updates[d[k + 16] & ~kKeptRouted].handle]);
         if (k + 8 < d.size()) {
-          const Object& ahead = objects_[updates[d[k + 8]].handle];
+          const Object& ahead = objects_[updates[d[k + 8] & ~kKeptRouted].handle];
           if (ahead.nrefs != 0) Prefetch(&refs_[ahead.refs]);
         }
-        UpdateObject(updates[d[k]].handle, updates[d[k]].box);
+        const HandleBox<kDim, Coord>& u = updates[d[k] & ~kKeptRouted];
+        UpdateObject(u.handle, u.box, (d[k] & kKeptRouted) != 0);
       }
       sh.deferred.clear();
     }
@@ -769,34 +835,56 @@ class GridCore {
     }
     for (size_t i = begin; i < end; ++i) {
       BP_GRID_PREFETCH_UPDATE(updates, i, end);
-      const auto& [h, box] = updates[i];
+      // Not a structured binding: the lambda below captures box (clang 14 cannot).
+      const uint32_t h = updates[i].handle;
+      const BoxType& box = updates[i].box;
       Object& o = objects_[h];
       BP_ASSERT(o.state == State::kLive);
-      if (!StaysInCells(o, box)) {
-        sh.deferred.push_back(static_cast<uint32_t>(i));
-        continue;
-      }
-      o.box = box;
-      for (uint32_t k = 0; k < o.nrefs; ++k) {
-        const CellRef ref = refs_[o.refs + k];
+      const auto route = [&](const CellRef& ref) {
         const size_t part = PartOf(ref.cell);
         PushRouted(sh.routed[part], ref, box);
         if (sh.counts[ref.cell]++ == 0) sh.touched[part].push_back(ref.cell);
+      };
+      if (StaysInCells(o, box)) {
+        o.box = box;
+        for (uint32_t k = 0; k < o.nrefs; ++k) route(refs_[o.refs + k]);
+        continue;
       }
+      // A small object that stays small migrates: its updates in the cells it keeps are routed
+      // here, and the rest left for the serial pass (RouteDeferred); on S1-1M those were 20 000
+      // of its 30 000 cell operations. Any other update is left whole.
+      CellCoord lo, hi;
+      RangeOf(box, &lo, &hi);
+      if (o.large != kNone || CellCount(lo, hi) > options_.max_cells_per_object) {
+        sh.deferred.push_back(static_cast<uint32_t>(i));
+        continue;
+      }
+      uint32_t k = 0;
+      Space::ForEachCoord(o.lo, o.hi, [&](const CellCoord& c) {
+        const CellRef& ref = refs_[o.refs + k++];
+        if (Space::Contains(lo, hi, c)) route(ref);
+      });
+      sh.deferred.push_back(static_cast<uint32_t>(i) | kKeptRouted);
     }
   }
+  // Marks a deferred update (an index into the query's updates, below kMaxHandles) whose
+  // updates in the cells it keeps were routed by its run.
+  static constexpr uint32_t kKeptRouted = uint32_t{1} << 31;
 
-  // Adds the shards' counts of the cells of `part` to their work, marking those newly touched
-  // (into part_touched_[part], in shard order), and zeroes the counts. Writes only the part's
-  // cells' entries: the parts merge in parallel.
+  // Adds the shards' counts of the cells of `part` to their shard_work_ entries, marks the cells
+  // touched (those newly touched into part_touched_[part], in shard order), counts the part's
+  // updates (into part_base_[part]) and zeroes the shards' counts. Writes only the part's cells'
+  // entries: the parts merge in parallel.
   void MergeCounts(size_t part) {
     std::vector<uint32_t>& out = part_touched_[part];
     out.clear();
+    uint32_t total = 0;
     for (Shard& sh : shards_) {
       for (uint32_t idx : sh.touched[part]) {
-        CellWork& work = cell_work_[idx];
-        work.updates += sh.counts[idx];
+        shard_work_[idx].count += sh.counts[idx];
+        total += sh.counts[idx];
         sh.counts[idx] = 0;
+        CellWork& work = cell_work_[idx];
         if (!work.touched) {
           work.touched = true;
           out.push_back(idx);
@@ -804,6 +892,29 @@ class GridCore {
       }
       sh.touched[part].clear();
     }
+    part_base_[part] = total;
+  }
+
+  // Scatters the shards' updates of the cells of `part` into grouped_shard_ (from
+  // part_base_[part] on), each cell's run in shard order: see RouteOnPool. Writes only the part's
+  // cells' shard_work_ entries and their runs.
+  void ScatterShard(size_t part) {
+    // In cell order, as the cells are applied when most are touched (QueryCells): their
+    // updates are then read in memory order (in the order of the merge, applying S1-1M's cells
+    // took 0.3 ms longer).
+    const uint32_t first = PartBegin(part), last = PartBegin(part + 1);
+    uint32_t at = part_base_[part];
+    for (uint32_t idx = first; idx < last; ++idx) {
+      shard_work_[idx].begin = at;  // the write cursor, set back below
+      at += shard_work_[idx].count;
+    }
+    BP_ASSERT(at == part_base_[part + 1]);
+    for (Shard& sh : shards_) {
+      ScatterRouted(sh.routed[part], grouped_shard_.data(), WorkFarFromCache(shard_work_),
+                    [this](uint32_t cell) -> uint32_t& { return shard_work_[cell].begin; });
+      sh.routed[part].clear();
+    }
+    for (uint32_t idx = first; idx < last; ++idx) shard_work_[idx].begin -= shard_work_[idx].count;
   }
 
   // The parts of the cells, for a parallel routing's merge and grouping: `parts` runs of cell
@@ -811,7 +922,15 @@ class GridCore {
   // by a migration or an insert, falls in the last part).
   void SetParts(size_t parts) {
     parts_ = parts;
-    part_mul_ = ((uint64_t{1} << 32) * parts) / std::max<size_t>(cells_.size(), 1);
+    part_cells_ = cells_.size();
+    part_mul_ = ((uint64_t{1} << 32) * parts) / std::max<size_t>(part_cells_, 1);
+  }
+  // The first cell of part p, of those counted by SetParts (p == parts_: their count).
+  uint32_t PartBegin(size_t p) const {
+    if (p == 0) return 0;
+    if (p >= parts_) return static_cast<uint32_t>(part_cells_);
+    const uint64_t at = ((uint64_t{p} << 32) + part_mul_ - 1) / part_mul_;  // PartOf(at) >= p
+    return static_cast<uint32_t>(std::min<uint64_t>(at, part_cells_));
   }
   // The part of cell idx: floor(idx * parts / cells) for the cells counted by SetParts, which
   // never reaches parts_ (the multiplier is rounded down), and the last part beyond.
@@ -915,11 +1034,10 @@ class GridCore {
     r.update.box = box;
   }
 
-  // The routed operations grouped by cell, in the order of touched_: each touched cell's
-  // updates, erases and inserts become one contiguous run each in grouped_, grouped_erases_ and
-  // grouped_inserts_ (starting at begin, erase_begin, insert_begin), in routing order within
-  // it. Updates of the shards (parallel routing) come first, in run order, then the serially
-  // routed ones.
+  // The serially routed operations grouped by cell, in the order of touched_: each touched
+  // cell's updates, erases and inserts become one contiguous run each in grouped_,
+  // grouped_erases_ and grouped_inserts_ (starting at begin, erase_begin, insert_begin), in
+  // routing order within it. (A parallel routing's shards are grouped by RouteOnPool.)
   void GroupUpdates() {
     uint32_t offset = 0, erase_offset = 0, insert_offset = 0;
     for (uint32_t idx : touched_) {
@@ -935,15 +1053,17 @@ class GridCore {
     grouped_erases_.resize(erase_offset);
     grouped_inserts_.resize(insert_offset);
     grouped_insert_refs_.resize(insert_offset);
-    // The begin fields serve as write cursors, and are set back after. After a parallel
-    // routing, one thread per part of the cells (each writes its cells' cursors alone).
-    if (parts_ > 1) {
-      pool_->ParallelFor(parts_, 1, [this](size_t begin, size_t end, unsigned) {
-        for (size_t part = begin; part < end; ++part) ScatterPart(part);
-      });
-      parts_ = 0;
-    } else {
-      ScatterPart(0);
+    // The begin fields serve as write cursors, and are set back after.
+    ScatterRouted(routed_, grouped_.data(), WorkFarFromCache(cell_work_),
+                  [this](uint32_t cell) -> uint32_t& { return cell_work_[cell].begin; });
+    for (const CellRef& r : routed_erases_) {
+      grouped_erases_[cell_work_[r.cell].erase_begin++] = r.local;
+    }
+    for (size_t k = 0; k < routed_inserts_.size(); ++k) {
+      const Routed& r = routed_inserts_[k];
+      const uint32_t at = cell_work_[r.cell].insert_begin++;
+      grouped_inserts_[at] = r.update;
+      grouped_insert_refs_[at] = routed_insert_refs_[k];
     }
     for (uint32_t idx : touched_) {
       CellWork& work = cell_work_[idx];
@@ -957,57 +1077,30 @@ class GridCore {
     routed_insert_refs_.clear();
   }
 
-  // Scatters the cells of `part` (all cells when parts_ is 0 or 1): the parallel routing's
-  // updates of the part, shard by shard, then those routed serially (routed_), then the erases
-  // and inserts, in routing order.
-  void ScatterPart(size_t part) {
-    const bool all = parts_ <= 1;
-    if (parts_ != 0) {
-      for (Shard& sh : shards_) {
-        ScatterRouted(sh.routed[part]);
-        sh.routed[part].clear();
-      }
-    }
-    if (all) {
-      ScatterRouted(routed_);
-    } else {
-      for (const Routed& r : routed_) {
-        if (PartOf(r.cell) == part) grouped_[cell_work_[r.cell].begin++] = r.update;
-      }
-    }
-    for (const CellRef& r : routed_erases_) {
-      if (all || PartOf(r.cell) == part) {
-        grouped_erases_[cell_work_[r.cell].erase_begin++] = r.local;
-      }
-    }
-    for (size_t k = 0; k < routed_inserts_.size(); ++k) {
-      const Routed& r = routed_inserts_[k];
-      if (!all && PartOf(r.cell) != part) continue;
-      const uint32_t at = cell_work_[r.cell].insert_begin++;
-      grouped_inserts_[at] = r.update;
-      grouped_insert_refs_[at] = routed_insert_refs_[k];
-    }
+  // True iff a per-cell table outgrows what kWorkInCache allows cell_work_.
+  template <class Table>
+  static bool WorkFarFromCache(const Table& table) {
+    return table.size() * sizeof(table[0]) > kWorkInCache * sizeof(CellWork);
   }
 
-  // Writes each of v's updates at its cell's write cursor in grouped_ (the cell's begin field,
-  // advanced). Above kWorkInCache cells, cells and cursors lie all over a work table larger
-  // than the L2: the cursor's line is prefetched 16 updates ahead, then the line the cursor
-  // points at 8 ahead, for writing (below, the prefetches measured a cost: S1-200k's cells
-  // phase 1.06). Called per part of the cells (ScatterPart): session 37's split of the
-  // scatter by shard or by halves of grouped_ took as long on S1-1M as one thread, or longer,
-  // where the routing's per-part lists give each thread its own cells' updates alone (two
-  // threads 1.56x, session 40).
-  void ScatterRouted(const HugeVector<Routed>& v) {
+  // Writes each of v's updates at its cell's write cursor in dst (cursor(cell), advanced). When
+  // the cursors' table is far from the cache (far), cells and cursors lie all over a table
+  // larger than the L2: the cursor's line is prefetched 16 updates ahead, then the line the
+  // cursor points at 8 ahead, for writing (on a table that fits, the prefetches measured a
+  // cost: S1-200k's cells phase 1.06).
+  template <class Cursor>
+  static void ScatterRouted(const HugeVector<Routed>& v, HandleBox<kDim, Coord>* dst, bool far,
+                            Cursor&& cursor) {
     const size_t n = v.size();
     const Routed* r = v.data();
-    if (cell_work_.size() <= kWorkInCache) {
-      for (size_t k = 0; k < n; ++k) grouped_[cell_work_[r[k].cell].begin++] = r[k].update;
+    if (!far) {
+      for (size_t k = 0; k < n; ++k) dst[cursor(r[k].cell)++] = r[k].update;
       return;
     }
     for (size_t k = 0; k < n; ++k) {
-      if (k + 16 < n) __builtin_prefetch(&cell_work_[r[k + 16].cell]);
-      if (k + 8 < n) __builtin_prefetch(grouped_.data() + cell_work_[r[k + 8].cell].begin, 1);
-      grouped_[cell_work_[r[k].cell].begin++] = r[k].update;
+      if (k + 16 < n) __builtin_prefetch(&cursor(r[k + 16].cell));
+      if (k + 8 < n) __builtin_prefetch(dst + cursor(r[k + 8].cell), 1);
+      dst[cursor(r[k].cell)++] = r[k].update;
     }
   }
 
@@ -1030,12 +1123,24 @@ class GridCore {
     if (pool_ != nullptr) {
       witnessed_.resize(size_t{pool_->threads()} * tracker_.shards());
       for (auto& w : witnessed_) w.clear();
-      pool_->ParallelFor(touched_.size(), kCellRun, [this](size_t begin, size_t end, unsigned t) {
-        for (size_t i = begin; i < end; ++i) {
-          PrefetchAhead(i, end);
-          ApplyCell(i, t);
-        }
-      });
+      // Index 0 is Apply's beside task when there is one (see Apply), the cells' follow: the
+      // pool's dynamic runs balance it with them.
+      const size_t extra = beside_ != nullptr ? 1 : 0;
+      pool_->ParallelFor(touched_.size() + extra, kCellRun,
+                         [this, extra](size_t begin, size_t end, unsigned t) {
+                           if (begin < extra) {
+                             (*beside_)();
+                             begin = extra;
+                           }
+                           for (size_t i = begin - extra; i < end - extra; ++i) {
+                             PrefetchAhead(i, end - extra);
+                             ApplyCell(i, t);
+                           }
+                         });
+      if (extra != 0) {  // once: a rebuild (Regrid) queries the cells again
+        beside_ran_ = true;
+        beside_ = nullptr;
+      }
     } else {
       // One thread: the same, on this thread (the order of the folds, touched_, is the same).
       witnessed_.resize(1);
@@ -1085,7 +1190,15 @@ class GridCore {
       if (ref_at[k] != kNone) inserts[k].handle = ClaimLocal(cell, inserts[k].handle, ref_at[k]);
     }
     cell.members = cell.members + work.inserts - work.erases;
-    cell.core.Apply(erases, std::span(grouped_.data() + work.begin, work.updates), inserts);
+    // The cell's updates: routed serially (grouped_), or by a parallel routing's shards
+    // (grouped_shard_), which leaves no update to the serial pass (RouteOnPool).
+    std::span<const HandleBox<kDim, Coord>> updates(grouped_.data() + work.begin, work.updates);
+    if (idx < shard_work_.size() && shard_work_[idx].count != 0) {
+      BP_ASSERT(updates.empty());
+      const ShardWork sw = std::exchange(shard_work_[idx], ShardWork{});
+      updates = std::span<const HandleBox<kDim, Coord>>(grouped_shard_.data() + sw.begin, sw.count);
+    }
+    cell.core.Apply(erases, updates, inserts);
     Stats s;
     cell.core.FillStats(&s);
     // Each change goes to this thread's buffer of its pair's shard (see FoldCells).
@@ -1518,7 +1631,22 @@ class GridCore {
   // parallel) and the cells each part's merge found newly touched.
   size_t parts_ = 0;
   uint64_t part_mul_ = 0;
+  size_t part_cells_ = 0;  // the cells SetParts counted
   std::vector<std::vector<uint32_t>> part_touched_;
+  // And where each part's run of grouped_shard_ starts (part_base_[parts_]: their count).
+  std::vector<uint32_t> part_base_;
+  // Per cell index, a parallel routing's shard updates: where they start in grouped_shard_ and
+  // how many (zero outside a query). Apart from cell_work_, which the serial pass writes (and
+  // grows, creating cells) while ScatterShard writes this.
+  struct ShardWork {
+    uint32_t begin = 0, count = 0;
+  };
+  std::vector<ShardWork> shard_work_;
+  const std::function<void()>* beside_ = nullptr;  // see Apply
+  bool beside_ran_ = false;
+  // A parallel routing's shard updates grouped by cell (ScatterShard), each part's run in cell
+  // order; the serially routed ones go to grouped_ (GroupUpdates).
+  HugeVector<HandleBox<kDim, Coord>> grouped_shard_;
   HugeVector<HandleBox<kDim, Coord>> grouped_;
   std::vector<CellRef> routed_erases_;        // this query's erases of cell slots, as routed
   HugeVector<Routed> routed_inserts_;         // and its inserts

@@ -65,6 +65,10 @@ Status GridCore<Cell>::Validate() const {
     }
   }
   if (cell_work_.size() != cells_.size()) return fail("per-cell work table of the wrong size");
+  if (std::any_of(shard_work_.begin(), shard_work_.end(),
+                  [](const ShardWork& w) { return w.count != 0; })) {
+    return fail("shard updates left after a query");
+  }
 
   FlatMap<uint64_t, uint32_t> count;
   size_t in_use = 0;
