@@ -35,7 +35,8 @@
 // cell over the bounds of the box centres); it is chosen again, and every cell rebuilt, when the
 // live count has changed fourfold and the best size differs by more than a factor of two.
 //
-// Thread safety: none for callers (see bp/broadphase.h); the pool's threads touch one cell each.
+// Thread safety: none for callers (see bp/broadphase.h); the pool's threads apply one cell each,
+// route runs of updates, or scatter parts of the cells beside the serial routing (RouteOnPool).
 // Invariants (checked by Validate, in detail/grid_validate.h):
 //  1. A live small object's refs list, in row-major order over its cell range, one (cell, local)
 //     per cell; cells_[cell] has that coordinate and global[local] is the object.
@@ -178,8 +179,11 @@ class GridCore {
              std::span<const HandleBox<kDim, Coord>> inserts, const std::function<void()>& beside) {
     beside_ = &beside;
     beside_ran_ = false;
+    struct Clear {  // never left dangling, even if Apply throws (std::bad_alloc)
+      const std::function<void()>** beside;
+      ~Clear() { *beside = nullptr; }
+    } clear{&beside_};
     Apply(erases, updates, inserts);
-    beside_ = nullptr;
     return beside_ran_;
   }
 
@@ -256,9 +260,10 @@ class GridCore {
     uint32_t cell;
     HandleBox<kDim, Coord> update;  // the cell's local handle and the new box
   };
-  // One run of a parallel routing: its updates that stay in their cells and the cells it
-  // touched, each by part of the cells (PartOf), their counts by cell index (zero outside
-  // touched), and the updates left for the serial pass (indices into the query's updates).
+  // One run of a parallel routing: its updates that stay in their cells and those of migrating
+  // objects in the cells they keep, and the cells it touched, each by part of the cells
+  // (PartOf), their counts by cell index (zero outside touched), and the updates left for the
+  // serial pass (indices into the query's updates, kKeptRouted marking migrations).
   // Two lines apart: the threads push to their shards' vectors at once, and with the shards'
   // headers sharing a line, 11% of the routing's samples waited on it (perf, S1-1M, two
   // threads).
@@ -744,7 +749,7 @@ class GridCore {
   //     the touched cells' work entries into the caches, where the serial pass finds them (when
   //     the merge ran beside that pass instead, the pass took 1.75 ms, not 1.05).
   //  3. One task makes the serial pass, in order: the rest of the updates the runs left
-  //     (RouteDeferred), then the inserts. Beside it, the other thread scatters the shards'
+  //     (RouteDeferred), then the inserts. Beside it, the other threads scatter the shards'
   //     updates by cell into grouped_shard_, part by part (ScatterShard), which the serial pass
   //     never touches. On S1-1M (two threads) the pass takes about 1.05 ms and the scatter
   //     0.65 beside it, where they took 1.1 and 0.55 one after the other.
@@ -820,7 +825,8 @@ class GridCore {
 
   // Routes updates[begin, end) on one pool thread: an update of a small object that stays in its
   // cells (no cell, handle or reference changes) stores the box and goes into the shard's
-  // routed list and per-cell counts; any other is left for the serial pass (deferred). Writes
+  // routed list and per-cell counts; a migration's updates in the cells it keeps go there too
+  // and the rest of it is left for the serial pass, as is any other update (deferred). Writes
   // only the updated objects' boxes and the shard: the updates name distinct objects.
   void RouteRun(std::span<const HandleBox<kDim, Coord>> updates, size_t begin, size_t end,
                 Shard& sh) {
@@ -1176,7 +1182,9 @@ class GridCore {
 
   // Applies touched_[i] on pool thread `thread`: runs the cell's core, appends its changes (as
   // global handle pairs) to the thread's buffer, and frees the local handles it erased (after
-  // the core has used them). Touches nothing but the cell, its work entry and cell_out_[i].
+  // the core has used them). Touches nothing but the cell, its work entries (cell_work_,
+  // shard_work_), cell_out_[i] and the references to the cell of its objects (ClaimLocal,
+  // CompactCell).
   void ApplyCell(size_t i, unsigned thread) {
     const uint32_t idx = touched_[i];
     GridCell& cell = *cells_[idx];
@@ -1636,8 +1644,8 @@ class GridCore {
   // And where each part's run of grouped_shard_ starts (part_base_[parts_]: their count).
   std::vector<uint32_t> part_base_;
   // Per cell index, a parallel routing's shard updates: where they start in grouped_shard_ and
-  // how many (zero outside a query). Apart from cell_work_, which the serial pass writes (and
-  // grows, creating cells) while ScatterShard writes this.
+  // how many (count zero outside a query; begin is then meaningless). Apart from cell_work_, which
+  // the serial pass writes (and grows, creating cells) while ScatterShard writes this.
   struct ShardWork {
     uint32_t begin = 0, count = 0;
   };

@@ -530,8 +530,9 @@ class KeyedEngine final : public Broadphase<Core::kDim, typename Core::Coord, Ke
 
   // Commits the erased slots and frees their handles (invariant 2); writes only the erased
   // slots' state (not their keys), index_ and free_. Updated and inserted slots are not
-  // visited: the epoch ends after (see Settle). The core's apply has evicted the erased slots
-  // and key-index lines since their calls: both are prefetched ahead (churn erases keys all
+  // visited: the epoch ends after (see Settle). The core's apply (during which a grid with a
+  // pool runs this) has evicted the erased slots and key-index lines since their calls: both
+  // are prefetched ahead (churn erases keys all
   // over the table). An erase scans its key's probe run to the run's end (backward-shift
   // deletion: about 24 entries, three lines, at S1-1M's load), so three lines of the index are
   // prefetched from the key's home.
