@@ -924,8 +924,8 @@ class GridCore {
   }
 
   // The parts of the cells, for a parallel routing's merge and grouping: `parts` runs of cell
-  // indices of about equal length, cut over the cells that exist now (a cell created later,
-  // by a migration or an insert, falls in the last part).
+  // indices of about equal length, cut over the cells that exist now. Only those get shard
+  // work: cells created later (by the serial pass) are never routed to, merged or scattered.
   void SetParts(size_t parts) {
     parts_ = parts;
     part_cells_ = cells_.size();
@@ -938,8 +938,8 @@ class GridCore {
     const uint64_t at = ((uint64_t{p} << 32) + part_mul_ - 1) / part_mul_;  // PartOf(at) >= p
     return static_cast<uint32_t>(std::min<uint64_t>(at, part_cells_));
   }
-  // The part of cell idx: floor(idx * parts / cells) for the cells counted by SetParts, which
-  // never reaches parts_ (the multiplier is rounded down), and the last part beyond.
+  // The part of cell idx, one of the cells counted by SetParts: floor(idx * parts / cells),
+  // which never reaches parts_ (the multiplier is rounded down; the min is a guard).
   size_t PartOf(uint32_t idx) const {
     return std::min<size_t>((uint64_t{idx} * part_mul_) >> 32, parts_ - 1);
   }
