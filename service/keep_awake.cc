@@ -90,8 +90,10 @@ void KeepAwake::Run(int cpu, std::promise<Status>* started) {
   uint64_t rounds = 0;
   while (!stop_.load(std::memory_order_relaxed)) {
     if (NowNs() < deadline_ns_.load(std::memory_order_relaxed)) {
-      // A fraction of a microsecond per round between clock reads; no PAUSE (see the header).
-      for (int i = 0; i < 256; ++i) asm volatile("" ::: "memory");
+      // Each round offers the CPU to any other runnable thread (see the header: without it a
+      // spinner may keep a CPU for a whole scheduler tick from a runnable daemon thread); with
+      // none, the call returns at once and the CPU stays busy. No PAUSE (see the header).
+      sched_yield();
       ++rounds;
       continue;
     }
