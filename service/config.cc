@@ -37,7 +37,8 @@ constexpr std::array<std::string_view, 3> kFramesKeys{"boundary", "tick_ms", "ke
 constexpr std::array<std::string_view, 6> kLimitsKeys{
     "max_batch_bytes",           "max_batch_items",         "max_objects",
     "max_pairs_per_event_batch", "max_rejections_reported", "snapshot_interval_ms"};
-constexpr std::array<std::string_view, 3> kLoggingKeys{"level", "summary_interval_s", "file"};
+constexpr std::array<std::string_view, 4> kLoggingKeys{"level", "summary_interval_s", "file",
+                                                       "frame_log"};
 constexpr std::array<std::string_view, 1> kProducersKeys{"lease_s"};
 
 // Indexed by the enums' values.
@@ -186,6 +187,8 @@ void ReadLogging(YamlReader& r, const Field& section, LoggingConfig* l) {
       r.ReadNumber(v, NumberRange{.min = 0, .max = kMaxSummaryIntervalS}, &l->summary_interval_s);
     } else if (name == "file") {
       r.ReadString(v, &l->file);
+    } else if (name == "frame_log") {
+      r.ReadString(v, &l->frame_log);
     }
   });
 }
@@ -394,6 +397,7 @@ Status LoadConfigFile(const std::string& path, Config* out) {
   std::filesystem::path dir = std::filesystem::path(path).parent_path();
   ResolveAgainst(dir, &config.dds.cyclone_config);
   ResolveAgainst(dir, &config.logging.file);
+  ResolveAgainst(dir, &config.logging.frame_log);
   *out = std::move(config);
   return Status::Ok();
 }
@@ -439,6 +443,7 @@ std::string ConfigToYaml(const Config& c) {
   line(k1, "level", YamlString(c.logging.level));
   line(k1, "summary_interval_s", FormatNumber(c.logging.summary_interval_s));
   line(k1, "file", YamlString(c.logging.file));
+  line(k1, "frame_log", YamlString(c.logging.frame_log));
   y += "producers:\n";
   line(k1, "lease_s", FormatNumber(c.producers.lease_s));
   return y;

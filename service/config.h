@@ -118,6 +118,9 @@ struct LoggingConfig {
   double summary_interval_s = 5.0;  ///< > 0 (or 0 = no periodic summary), <= 86400
   /// "" = stderr only; else also append to this file (resolved like dds.cyclone_config).
   std::string file;
+  /// "" = none; else a CSV file (resolved the same way, replaced at start) with one line per
+  /// frame: its stages' times, the engine's phases and its counts (see the README).
+  std::string frame_log;
 
   /// Member-wise equality.
   bool operator==(const LoggingConfig&) const = default;

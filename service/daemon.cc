@@ -1,7 +1,10 @@
 #include "daemon.h"
 
 #include <algorithm>
+#include <cerrno>
+#include <cinttypes>
 #include <cstddef>
+#include <cstring>
 #include <random>
 
 #include "percentile.h"
@@ -80,6 +83,18 @@ Status Daemon::Create(const Config& config, std::unique_ptr<Daemon>* out) {
   }
   if (Status s = d->waitset_.Attach(d->updates_); !s.ok()) return s;
   if (Status s = d->waitset_.Attach(d->requests_); !s.ok()) return s;
+  if (const std::string& path = config.logging.frame_log; !path.empty()) {
+    d->frame_log_.reset(std::fopen(path.c_str(), "w"));
+    if (!d->frame_log_) {
+      return Status(StatusCode::kUnavailable,
+                    "logging.frame_log: cannot open '" + path + "': " + std::strerror(errno));
+    }
+    std::fputs(
+        "frame,wall_ns,source_producer,source_frame,source_sent_ns,batches,ingest_ms,query_ms,"
+        "publish_ms,prepare_ms,core_ms,route_ms,cells_ms,fold_ms,events_ms,inserts,updates,"
+        "erases,collides,uncollides,objects,overlaps,cells_queried\n",
+        d->frame_log_.get());
+  }
   std::random_device random;
   while (d->epoch_ == 0) d->epoch_ = uint64_t{random()} << 32 | random();
   *out = std::move(d);
@@ -185,6 +200,9 @@ Status Daemon::Run() {
     spdlog::warn("not every subscriber acknowledged the last events: {}", s.ToString());
   }
   if (summaries) Summary();
+  if (frame_log_ && std::fflush(frame_log_.get()) != 0) {
+    spdlog::error("logging.frame_log: cannot write ({})", std::strerror(errno));
+  }
   PublishStatus(wire::STOPPING, false);
   (void)status_.WaitForAcks(std::chrono::milliseconds(500));
   spdlog::info("stopped after {} frames, {} batches, {} rejected items", frames_.load(),
@@ -449,6 +467,7 @@ void Daemon::ProcessPayload(std::span<const uint8_t> payload, const dds_sample_i
   if (keep_awake_) keep_awake_->Touch();
   ++batches_total_;
   ++interval_batches_;
+  ++frame_batches_;
   auto batch_reject = [&](uint32_t producer, wire::RejectReason reason, std::string why) {
     ReportRejection(producer, nullptr, Reject{wire::OP_BATCH, 0, 0, reason, std::move(why)});
     FlushRejections();
@@ -541,6 +560,7 @@ void Daemon::FlushRejections() {
 
 void Daemon::RunFrame(uint32_t source_producer, uint64_t source_frame, uint64_t source_sent_ns) {
   const auto start = Clock::now();
+  const int64_t start_wall_ns = frame_log_ ? static_cast<int64_t>(client::WallClockNs()) : 0;
   host_->Query(&uncollide_, &collide_);
   const auto queried = Clock::now();
   const uint64_t frame = frames_.load() + 1;
@@ -583,17 +603,50 @@ void Daemon::RunFrame(uint32_t source_producer, uint64_t source_frame, uint64_t 
   frame_dirty_ = false;
   ++interval_frames_;
   interval_events_ += pairs;
-  // Kept for the summary's percentiles only, and cleared by it (no summary, no growth).
-  if (summaries_) {
+  if (summaries_ || frame_log_) {
     using Ms = std::chrono::duration<double, std::milli>;
     const double ingest = Ms(ingest_work_).count(), query = Ms(queried - start).count(),
                  publish = Ms(Clock::now() - queried).count();
-    ingest_ms_.push_back(ingest);
-    query_ms_.push_back(query);
-    publish_ms_.push_back(publish);
-    frame_ms_.push_back(ingest + query + publish);
+    // Kept for the summary's percentiles only, and cleared by it (no summary, no growth).
+    if (summaries_) {
+      ingest_ms_.push_back(ingest);
+      query_ms_.push_back(query);
+      publish_ms_.push_back(publish);
+      frame_ms_.push_back(ingest + query + publish);
+    }
+    if (frame_log_) {
+      LogFrame(frame, start_wall_ns, source_producer, source_frame, source_sent_ns, ingest, query,
+               publish);
+    }
   }
   ingest_work_ = std::chrono::nanoseconds(0);
+  frame_batches_ = 0;
+}
+
+void Daemon::LogFrame(uint64_t frame, int64_t wall_ns, uint32_t source_producer,
+                      uint64_t source_frame, uint64_t source_sent_ns, double ingest, double query,
+                      double publish) {
+  const Stats st = host_->GetStats();
+  std::FILE* f = frame_log_.get();
+  const int written = std::fprintf(
+      f,
+      "%" PRIu64 ",%" PRId64 ",%" PRIu32 ",%" PRIu64 ",%" PRIu64 ",%" PRIu64
+      ",%.4f,%.4f,%.4f,%.4f,%.4f,%.4f,%.4f,%.4f,%.4f,%zu,%zu,%zu,%zu,%zu,%zu,%zu,%zu\n",
+      frame, wall_ns, source_producer, source_frame, source_sent_ns, frame_batches_, ingest, query,
+      publish, st.prepare_ms, st.core_ms, st.route_ms, st.cells_ms, st.fold_ms, st.events_ms,
+      st.inserts, st.updates, st.erases, st.collides, st.uncollides, st.objects, st.overlaps,
+      st.cells_queried);
+  // Buffered; flushed about once a second (and when the daemon stops), so that a reader follows
+  // the file without a write per frame.
+  const auto now = Clock::now();
+  const bool flush = now - frame_log_flushed_ >= std::chrono::seconds(1);
+  if (written < 0 || (flush && std::fflush(f) != 0)) {
+    spdlog::error("logging.frame_log: cannot write ({}); no more frames are logged",
+                  std::strerror(errno));
+    frame_log_.reset();
+    return;
+  }
+  if (flush) frame_log_flushed_ = now;
 }
 
 void Daemon::WriteEventPart() {

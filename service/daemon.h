@@ -26,6 +26,7 @@
 #include <atomic>
 #include <chrono>
 #include <cstdint>
+#include <cstdio>
 #include <map>
 #include <memory>
 #include <string>
@@ -111,6 +112,9 @@ class Daemon {
   void FlushRejections();
   void PublishStatus(wire::Health health, bool with_interval);
   void Summary();
+  // Appends the frame's line to logging.frame_log (times in ms, from the frame's stages).
+  void LogFrame(uint64_t frame, int64_t wall_ns, uint32_t source_producer, uint64_t source_frame,
+                uint64_t source_sent_ns, double ingest, double query, double publish);
 
   Config config_;
   // Before connection_: Cyclone's listener thread may call it until the reader is deleted.
@@ -138,6 +142,12 @@ class Daemon {
   bool frame_dirty_ = false;  // a batch was applied since the last frame
   bool summaries_ = false;    // periodic summaries are on (frame times are kept for them)
   std::chrono::nanoseconds ingest_work_{0};  // the open frame's batches: decode, validate, apply
+  uint64_t frame_batches_ = 0;               // the open frame's batches
+  struct FileCloser {
+    void operator()(std::FILE* f) const { std::fclose(f); }
+  };
+  std::unique_ptr<std::FILE, FileCloser> frame_log_;  // logging.frame_log; null when off or failed
+  std::chrono::steady_clock::time_point frame_log_flushed_{};
   uint64_t event_seq_ = 0;
   uint64_t status_seq_ = 0;
   uint64_t event_write_failures_ = 0;

@@ -133,6 +133,7 @@ TEST(ConfigDefaults, MatchTheDocumentedValues) {
   EXPECT_EQ(c.logging.level, "info");
   EXPECT_EQ(c.logging.summary_interval_s, 5.0);
   EXPECT_EQ(c.logging.file, "");
+  EXPECT_EQ(c.logging.frame_log, "");
 }
 
 TEST(ConfigDefaults, EmptyTextAndEmptyDocumentsGiveTheDefaults) {
@@ -173,6 +174,7 @@ TEST(ConfigShipped, LoadsAndResolvesTheCycloneConfigNextToIt) {
   EXPECT_TRUE(std::filesystem::is_regular_file(c.dds.cyclone_config));
   EXPECT_TRUE(std::filesystem::is_regular_file(BP_SOURCE_DIR "/config/cyclonedds-lan.xml"));
   EXPECT_EQ(c.logging.file, "");  // "" stays "" (stderr only)
+  EXPECT_EQ(c.logging.frame_log, "");
 }
 
 // ---------------------------------------------------------------------------------------------
@@ -210,7 +212,7 @@ const RuleCase kRuleCases[] = {
      "cfg.yaml:1:1: engin: unknown key 'engin' (did you mean 'engine'?)"},
     {"UnknownKeyListsValidKeys", "logging:\n  colour: true\n",
      "cfg.yaml:2:3: logging.colour: unknown key 'logging.colour' (valid keys: level, "
-     "summary_interval_s, file)"},
+     "summary_interval_s, file, frame_log)"},
     {"UnknownNestedKey", "dds:\n  topics:\n    event: x\n",
      "cfg.yaml:3:5: dds.topics.event: unknown key 'dds.topics.event' (did you mean 'events'?)"},
     {"KeyNotAScalar", "engine:\n  ? [a]\n  : 1\n",
@@ -616,13 +618,16 @@ TEST(ConfigFile, RelativePathsResolveAgainstTheFilesDirectory) {
   ASSERT_FALSE(tmp.path().empty());
   std::filesystem::create_directory(tmp.path() / "etc");
   std::filesystem::path file = tmp.path() / "etc" / "bp.yaml";
-  WriteFile(file, "dds:\n  cyclone_config: dds/lan.xml\nlogging:\n  file: ../log/bp.log\n");
+  WriteFile(file,
+            "dds:\n  cyclone_config: dds/lan.xml\nlogging:\n  file: ../log/bp.log\n"
+            "  frame_log: frames.csv\n");
   Config c;
   Status s = LoadConfigFile(file.string(), &c);
   ASSERT_TRUE(s.ok()) << s.ToString();
   EXPECT_EQ(c.source, file.string());
   EXPECT_EQ(c.dds.cyclone_config, (tmp.path() / "etc" / "dds/lan.xml").string());
   EXPECT_EQ(c.logging.file, (tmp.path() / "etc" / "../log/bp.log").string());
+  EXPECT_EQ(c.logging.frame_log, (tmp.path() / "etc" / "frames.csv").string());
 
   // The default (relative) cyclone_config resolves too; absolute paths and "" stay.
   WriteFile(file, "logging:\n  file: /var/log/bp.log\n");
@@ -692,6 +697,7 @@ TEST(ConfigToYamlTest, RoundTripsANonDefaultConfig) {
   c.logging.level = "trace";
   c.logging.summary_interval_s = 1e-3;
   c.logging.file = "null";
+  c.logging.frame_log = "/tmp/frames: a.csv";
   c.producers.lease_s = 0.25;
 
   std::string yaml = ConfigToYaml(c);
@@ -713,7 +719,7 @@ TEST(ConfigToYamlTest, WritesEveryKeyPlainWhereUnambiguous) {
         "  file: \"\"\n", "producers:\n", "  lease_s: 10.0\n"}) {
     EXPECT_TRUE(Contains(yaml, line)) << line << "---\n" << yaml;
   }
-  EXPECT_EQ(Lines(yaml).size(), 36u) << yaml;  // 6 sections + topics + 29 keys
+  EXPECT_EQ(Lines(yaml).size(), 37u) << yaml;  // 6 sections + topics + 30 keys
 }
 
 TEST(ConfigNames, AreCanonical) {

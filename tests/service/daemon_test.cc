@@ -5,9 +5,13 @@
 #include <atomic>
 #include <cmath>
 #include <condition_variable>
+#include <filesystem>
+#include <fstream>
 #include <limits>
 #include <mutex>
 #include <set>
+#include <sstream>
+#include <string>
 #include <tuple>
 
 #include "service_test_support.h"
@@ -156,6 +160,94 @@ wire::UpdateBatch InsertBatch(std::initializer_list<std::pair<uint64_t, Box<3, f
 }
 
 Box<3, float> Cube(float x, float w = 1.0f) { return Box<3, float>{{x, 0, 0}, {x + w, w, w}}; }
+
+// Splits a CSV line (no quoting: the frame log has numbers only).
+std::vector<std::string> CsvFields(const std::string& line) {
+  std::vector<std::string> out;
+  std::stringstream in(line);
+  for (std::string field; std::getline(in, field, ',');) out.push_back(field);
+  return out;
+}
+
+TEST(Daemon, FrameLogHasALinePerFrameWithItsStagesAndCounts) {
+  const std::filesystem::path path = std::filesystem::temp_directory_path() /
+                                     ("bp_frame_log_test_" + std::to_string(getpid()) + ".csv");
+  service::Config config = TestConfig(kDomain);
+  config.engine.algorithm = "grid_dense";
+  config.logging.frame_log = path.string();
+  InProcessDaemon daemon(config);
+  Client client(config);
+  auto pub = client.Publisher(1);
+  Scene scene(SmallScene(11));
+  Oracle<3> oracle;
+  PairList unc, col;
+  FrameOps ops = InitialOps(scene);
+  struct Expected {
+    size_t inserts, updates, erases, collides, uncollides, objects;
+  };
+  std::vector<Expected> expected;
+  for (uint64_t frame = 1; frame <= 6; ++frame) {
+    if (frame > 1) scene.NextFrame(&ops);
+    oracle.Apply(1, ops);
+    oracle.Query(&unc, &col);
+    expected.push_back({ops.inserts.size(), ops.updates.size(), ops.erases.size(), col.size(),
+                        unc.size(), oracle.Size()});
+    PublishFrame(*pub, ops, 3, frame, 2);
+    ExpectFrame(*client.events, frame, unc, col);
+  }
+  BP_ASSERT_OK(daemon.Stop());  // flushes the log
+
+  std::ifstream in(path);
+  ASSERT_TRUE(in) << "no frame log at " << path;
+  std::string header;
+  ASSERT_TRUE(std::getline(in, header));
+  const std::vector<std::string> names = CsvFields(header);
+  auto column = [&](const char* name) {
+    const auto it = std::find(names.begin(), names.end(), name);
+    EXPECT_NE(it, names.end()) << "no column " << name;
+    return static_cast<size_t>(it - names.begin());
+  };
+  std::vector<std::vector<std::string>> rows;
+  for (std::string line; std::getline(in, line);) rows.push_back(CsvFields(line));
+  ASSERT_EQ(rows.size(), expected.size());
+  for (size_t i = 0; i < rows.size(); ++i) {
+    const std::vector<std::string>& row = rows[i];
+    ASSERT_EQ(row.size(), names.size()) << "line " << i + 2;
+    auto number = [&](const char* name) { return std::stod(row[column(name)]); };
+    const Expected& e = expected[i];
+    SCOPED_TRACE("frame " + std::to_string(i + 1));
+    EXPECT_EQ(number("frame"), static_cast<double>(i + 1));
+    EXPECT_EQ(number("source_producer"), 1.0);
+    EXPECT_EQ(number("source_frame"), static_cast<double>(i + 1));
+    EXPECT_GT(number("source_sent_ns"), 0.0);
+    EXPECT_GT(number("wall_ns"), number("source_sent_ns"));
+    EXPECT_EQ(number("batches"), 2.0);
+    EXPECT_EQ(number("inserts"), static_cast<double>(e.inserts));
+    EXPECT_EQ(number("updates"), static_cast<double>(e.updates));
+    EXPECT_EQ(number("erases"), static_cast<double>(e.erases));
+    EXPECT_EQ(number("collides"), static_cast<double>(e.collides));
+    EXPECT_EQ(number("uncollides"), static_cast<double>(e.uncollides));
+    EXPECT_EQ(number("objects"), static_cast<double>(e.objects));
+    for (const char* ms : {"ingest_ms", "query_ms", "publish_ms", "core_ms", "cells_ms"}) {
+      EXPECT_GE(number(ms), 0.0) << ms;
+    }
+    EXPECT_GT(number("query_ms"), 0.0);
+    EXPECT_GT(number("cells_queried"), 0.0);
+  }
+  std::filesystem::remove(path);
+}
+
+TEST(Daemon, AFrameLogThatCannotBeOpenedFailsTheStartNamingIt) {
+  service::Config config = TestConfig(kDomain);
+  config.logging.frame_log = "/nonexistent-dir-bp/frames.csv";
+  std::unique_ptr<service::Daemon> daemon;
+  Status s = service::Daemon::Create(config, &daemon);
+  EXPECT_EQ(s.code(), StatusCode::kUnavailable);
+  EXPECT_NE(s.message().find("logging.frame_log: cannot open '/nonexistent-dir-bp/frames.csv'"),
+            std::string::npos)
+      << s.message();
+  EXPECT_EQ(daemon, nullptr);
+}
 
 TEST(Daemon, EachBadItemIsRejectedWithItsReasonAndTheRestApplies) {
   service::Config config = TestConfig(kDomain);
