@@ -155,8 +155,8 @@ class GridCore {
     defer_locals_ = large_count_ == 0;
     phase_ = Stopwatch();
     route_ms_ = cells_ms_ = fold_ms_ = 0;
-    EraseObjects(erases);
-    if (!RouteOnPool(updates, inserts)) {
+    if (!RouteOnPool(erases, updates, inserts)) {
+      EraseObjects(erases);
       RouteUpdates(updates);
       InsertObjects(inserts);
     }
@@ -242,6 +242,9 @@ class GridCore {
   // A parallel routing's parts of the cells per thread (see RouteOnPool): more than one, so that
   // the thread done first with the serial pass or a part can take another part.
   static constexpr size_t kPartsPerThread = 2;
+  // What an erase costs, in routed updates (RouteOnPool's first run): S1-1M, two threads,
+  // erased 50 ns each against 23 ns per routed update.
+  static constexpr size_t kEraseWeight = 2;
   // How far ahead of the cell being applied its successors' records and arrays are prefetched.
   static constexpr size_t kRecordAhead = 4, kArraysAhead = 2;
   // Cells whose work entries (CellWork) fill about 256 KiB, half an L2 of this project's Zen 3:
@@ -744,7 +747,12 @@ class GridCore {
   // large object exists (else false, and nothing is done):
   //  1. The updates are cut into one run per thread, and routed in parallel into per-run
   //     shards (RouteRun), by part of the cells (PartOf): those that stay in their cells
-  //     whole, those of migrating objects in the cells they keep.
+  //     whole, those of migrating objects in the cells they keep. The first run starts with
+  //     the erases (EraseObjects), and is shorter by their cost: they touch no updated object
+  //     (the front end stages one call per object) and nothing a run writes or reads but the
+  //     objects' table, in other records (their cells' work entries, touched_, routed_erases_
+  //     and the free references are the serial side's). On S1-1M (two threads, 5 000 erases,
+  //     0.25 ms) the routing took 0.1-0.2 ms less than with the erases before it.
   //  2. The shards' counts are merged per part, in parallel (MergeCounts); this also brings
   //     the touched cells' work entries into the caches, where the serial pass finds them (when
   //     the merge ran beside that pass instead, the pass took 1.75 ms, not 1.05).
@@ -754,12 +762,20 @@ class GridCore {
   //     never touches. On S1-1M (two threads) the pass takes about 1.05 ms and the scatter
   //     0.65 beside it, where they took 1.1 and 0.55 one after the other.
   // A cell's updates are then its shards', in run order.
-  bool RouteOnPool(std::span<const HandleBox<kDim, Coord>> updates,
+  bool RouteOnPool(std::span<const uint32_t> erases,
+                   std::span<const HandleBox<kDim, Coord>> updates,
                    std::span<const HandleBox<kDim, Coord>> inserts) {
     const size_t n = updates.size();
     if (large_count_ != 0 || PoolFor(n) == nullptr) return false;
     const size_t runs = pool_->threads();
-    const size_t grain = (n + runs - 1) / runs;
+    // Run 0 starts with the erases and is shorter by their cost (kEraseWeight updates each).
+    const size_t weighted = n + erases.size() * kEraseWeight;
+    const size_t per_run = (weighted + runs - 1) / runs;
+    run_begin_.resize(runs + 1);
+    run_begin_[0] = 0;
+    run_begin_[1] = std::min(n, per_run - std::min(per_run, erases.size() * kEraseWeight));
+    for (size_t r = 2; r <= runs; ++r) run_begin_[r] = std::min(n, run_begin_[r - 1] + per_run);
+    run_begin_[runs] = n;
     SetParts(runs * kPartsPerThread);
     shards_.resize(runs);
     for (Shard& sh : shards_) {
@@ -767,8 +783,11 @@ class GridCore {
       sh.routed.resize(parts_);
       sh.touched.resize(parts_);
     }
-    pool_->ParallelFor(n, grain, [&](size_t begin, size_t end, unsigned) {
-      RouteRun(updates, begin, end, shards_[begin / grain]);
+    pool_->ParallelFor(runs, 1, [&](size_t begin, size_t end, unsigned) {
+      for (size_t r = begin; r < end; ++r) {
+        if (r == 0) EraseObjects(erases);
+        RouteRun(updates, run_begin_[r], run_begin_[r + 1], shards_[r]);
+      }
     });
     // The shards' counts into shard_work_, one part per thread, marking the cells touched.
     shard_work_.resize(cells_.size());
@@ -1635,6 +1654,7 @@ class GridCore {
   std::vector<uint32_t> touched_;
   HugeVector<Routed> routed_;
   std::vector<Shard> shards_;
+  std::vector<size_t> run_begin_;  // RouteOnPool: where each routing run starts, then n
   // A parallel routing's parts of the cells (SetParts; 0 outside a query that routed in
   // parallel) and the cells each part's merge found newly touched.
   size_t parts_ = 0;
