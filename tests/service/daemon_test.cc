@@ -213,7 +213,7 @@ TEST(Daemon, FrameLogHasALinePerFrameWithItsStagesAndCounts) {
   for (size_t i = 0; i < rows.size(); ++i) {
     const std::vector<std::string>& row = rows[i];
     ASSERT_EQ(row.size(), names.size()) << "line " << i + 2;
-    auto number = [&](const char* name) { return std::stod(row[column(name)]); };
+    auto number = [&](const char* name) { return std::stod(row.at(column(name))); };
     const Expected& e = expected[i];
     SCOPED_TRACE("frame " + std::to_string(i + 1));
     EXPECT_EQ(number("frame"), static_cast<double>(i + 1));

@@ -28,15 +28,16 @@
 // the cells' own work: only cells with buffered operations are applied.
 //
 // With `threads` > 1 the touched cells are applied by a worker pool (cells share nothing); their
-// changes are then folded serially in the order of the touched list, so events do not depend on
-// the thread count.
+// changes are then folded into the witness counts by shard of the pair sets, one shard per
+// thread, each in the order of the touched list, so events do not depend on the thread count.
 //
 // The cell size is either given or chosen from the objects (about `objects_per_cell` objects per
 // cell over the bounds of the box centres); it is chosen again, and every cell rebuilt, when the
 // live count has changed fourfold and the best size differs by more than a factor of two.
 //
 // Thread safety: none for callers (see bp/broadphase.h); the pool's threads apply one cell each,
-// route runs of updates, or scatter parts of the cells beside the serial routing (RouteOnPool).
+// route runs of updates (the first after the erases), or scatter parts of the cells beside the
+// serial routing (RouteOnPool).
 // Invariants (checked by Validate, in detail/grid_validate.h):
 //  1. A live small object's refs list, in row-major order over its cell range, one (cell, local)
 //     per cell; cells_[cell] has that coordinate and global[local] is the object.
@@ -749,10 +750,11 @@ class GridCore {
   //     shards (RouteRun), by part of the cells (PartOf): those that stay in their cells
   //     whole, those of migrating objects in the cells they keep. The first run starts with
   //     the erases (EraseObjects), and is shorter by their cost: they touch no updated object
-  //     (the front end stages one call per object) and nothing a run writes or reads but the
-  //     objects' table, in other records (their cells' work entries, touched_, routed_erases_
-  //     and the free references are the serial side's). On S1-1M (two threads, 5 000 erases,
-  //     0.25 ms) the routing took 0.1-0.2 ms less than with the erases before it.
+  //     (the front end stages one call per object) and share with the runs only the objects'
+  //     table and refs_, in other records (and read refs_ only; their cells' work entries,
+  //     touched_, routed_erases_ and the free references are the serial side's, and nothing
+  //     grows). On S1-1M (two threads, 5 000 erases, 0.25 ms) the routing took 0.1-0.2 ms less
+  //     than with the erases before it.
   //  2. The shards' counts are merged per part, in parallel (MergeCounts); this also brings
   //     the touched cells' work entries into the caches, where the serial pass finds them (when
   //     the merge ran beside that pass instead, the pass took 1.75 ms, not 1.05).
