@@ -41,8 +41,8 @@ struct Gaps {
   double worked_ms = 0;
 };
 
-// Works in bursts of `burst`, sleeping `rest` between them; records gaps over `threshold` (us)
-// between two consecutive clock reads within a burst.
+// Works in 2 ms bursts with 1 ms sleeps between them; records gaps over `threshold` (us) between
+// two consecutive clock reads within a burst.
 void FrameThread(int cpu, const std::atomic<bool>& stop, double threshold, Gaps* out) {
   Pin(cpu);
   while (!stop.load(std::memory_order_relaxed)) {

@@ -776,7 +776,8 @@ class GridCore {
     run_begin_.resize(runs + 1);
     run_begin_[0] = 0;
     run_begin_[1] = std::min(n, per_run - std::min(per_run, erases.size() * kEraseWeight));
-    for (size_t r = 2; r <= runs; ++r) run_begin_[r] = std::min(n, run_begin_[r - 1] + per_run);
+    // The runs after it hold per_run each, the last the rest (runs * per_run >= weighted).
+    for (size_t r = 2; r < runs; ++r) run_begin_[r] = std::min(n, run_begin_[r - 1] + per_run);
     run_begin_[runs] = n;
     SetParts(runs * kPartsPerThread);
     shards_.resize(runs);
