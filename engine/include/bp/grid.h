@@ -36,8 +36,8 @@
 // live count has changed fourfold and the best size differs by more than a factor of two.
 //
 // Thread safety: none for callers (see bp/broadphase.h); the pool's threads apply one cell each,
-// route runs of updates (the first after the erases), or scatter parts of the cells beside the
-// serial routing (RouteOnPool).
+// route runs of updates (the first after the erases), or scatter parts of the cells (and run
+// Apply's beside task) beside the serial routing (RouteOnPool).
 // Invariants (checked by Validate, in detail/grid_validate.h):
 //  1. A live small object's refs list, in row-major order over its cell range, one (cell, local)
 //     per cell; cells_[cell] has that coordinate and global[local] is the object.
@@ -75,6 +75,7 @@
 #include "bp/detail/huge_alloc.h"
 #include "bp/detail/keyed_engine.h"
 #include "bp/detail/pair_tracker.h"
+#include "bp/detail/prefetch.h"
 #include "bp/detail/stopwatch.h"
 #include "bp/detail/sweep.h"
 #include "bp/detail/worker_pool.h"
@@ -172,8 +173,9 @@ class GridCore {
     MaybeResize();
   }
 
-  /// Apply that runs beside() once on the pool, as one more task among the cells' applies, when
-  /// the grid has a pool (then returns true), else not at all (false: the caller runs it).
+  /// Apply that runs beside() once on the pool, as one more task beside the serial part of a
+  /// parallel routing (RouteOnPool) or else among the cells' applies, when the grid has a pool
+  /// (then returns true), else not at all (false: the caller runs it).
   /// beside must touch nothing of the grid's; the front end commits its erased keys with it.
   static constexpr bool kAppliesBeside = true;
   bool Apply(std::span<const uint32_t> erases, std::span<const HandleBox<kDim, Coord>> updates,
@@ -759,10 +761,12 @@ class GridCore {
   //     the touched cells' work entries into the caches, where the serial pass finds them (when
   //     the merge ran beside that pass instead, the pass took 1.75 ms, not 1.05).
   //  3. One task makes the serial pass, in order: the rest of the updates the runs left
-  //     (RouteDeferred), then the inserts. Beside it, the other threads scatter the shards'
-  //     updates by cell into grouped_shard_, part by part (ScatterShard), which the serial pass
-  //     never touches. On S1-1M (two threads) the pass takes about 1.05 ms and the scatter
-  //     0.65 beside it, where they took 1.1 and 0.55 one after the other.
+  //     (RouteDeferred), then the inserts. Beside it, the other threads run Apply's beside task
+  //     (the front end's commit of its erased keys), then scatter the shards' updates by cell
+  //     into grouped_shard_, part by part (ScatterShard), which the serial pass never touches.
+  //     On S1-1M (two threads) the pass took 1.5 ms, the scatter 0.87 beside it, then 0.66 of
+  //     the other thread idle: the beside task (0.66) fills it, and is no longer among the
+  //     cells' applies.
   // A cell's updates are then its shards', in run order.
   bool RouteOnPool(std::span<const uint32_t> erases,
                    std::span<const HandleBox<kDim, Coord>> updates,
@@ -808,16 +812,25 @@ class GridCore {
     grouped_shard_.resize(total);
     pool_routed_ = n;
     for (const Shard& sh : shards_) pool_routed_ -= sh.deferred.size();
-    pool_->ParallelFor(parts_ + 1, 1, [&](size_t begin, size_t end, unsigned) {
+    // Task 0 is the serial pass, 1 Apply's beside task when there is one, the parts' scatters
+    // follow.
+    const size_t extra = beside_ != nullptr ? 1 : 0;
+    pool_->ParallelFor(parts_ + 1 + extra, 1, [&](size_t begin, size_t end, unsigned) {
       for (size_t task = begin; task < end; ++task) {
         if (task == 0) {
           RouteDeferred(updates);
           InsertObjects(inserts);
+        } else if (task <= extra) {
+          (*beside_)();
         } else {
-          ScatterShard(task - 1);
+          ScatterShard(task - 1 - extra);
         }
       }
     });
+    if (extra != 0) {
+      beside_ran_ = true;
+      beside_ = nullptr;
+    }
     // Every update the serial pass met was a migration whose kept cells its run routed (or an
     // object turned large, which leaves its cells): none was routed serially (see ApplyCell).
     BP_ASSERT(routed_.empty());
@@ -859,7 +872,7 @@ class GridCore {
     const char* counts = reinterpret_cast<const char*>(sh.counts.data());
     const size_t counts_bytes = sh.counts.size() * sizeof(uint32_t);
     if (counts_bytes / 64 <= end - begin) {
-      for (size_t off = 0; off < counts_bytes; off += 64) __builtin_prefetch(counts + off, 1);
+      for (size_t off = 0; off < counts_bytes; off += 64) PrefetchForWrite(counts + off);
     }
     for (size_t i = begin; i < end; ++i) {
       BP_GRID_PREFETCH_UPDATE(updates, i, end);
@@ -1127,7 +1140,7 @@ class GridCore {
     }
     for (size_t k = 0; k < n; ++k) {
       if (k + 16 < n) __builtin_prefetch(&cursor(r[k + 16].cell));
-      if (k + 8 < n) __builtin_prefetch(dst + cursor(r[k + 8].cell), 1);
+      if (k + 8 < n) PrefetchForWrite(dst + cursor(r[k + 8].cell));
       dst[cursor(r[k].cell)++] = r[k].update;
     }
   }
@@ -1151,8 +1164,8 @@ class GridCore {
     if (pool_ != nullptr) {
       witnessed_.resize(size_t{pool_->threads()} * tracker_.shards());
       for (auto& w : witnessed_) w.clear();
-      // Index 0 is Apply's beside task when there is one (see Apply), the cells' follow: the
-      // pool's dynamic runs balance it with them.
+      // Index 0 is Apply's beside task when there is one and no parallel routing ran it (see
+      // Apply), the cells' follow: the pool's dynamic runs balance it with them.
       const size_t extra = beside_ != nullptr ? 1 : 0;
       pool_->ParallelFor(touched_.size() + extra, kCellRun,
                          [this, extra](size_t begin, size_t end, unsigned t) {
@@ -1191,8 +1204,11 @@ class GridCore {
   // the stages, a cell's record and arrays were dependent misses, one after the other.
   void PrefetchAhead(size_t i, size_t end) {
     if (i + kRecordAhead < end) {
-      const char* p = reinterpret_cast<const char*>(cells_[touched_[i + kRecordAhead]].get());
-      for (size_t off = 0; off < sizeof(GridCell); off += 64) Prefetch(p + off);
+      const uint32_t idx = touched_[i + kRecordAhead];
+      const char* p = reinterpret_cast<const char*>(cells_[idx].get());
+      for (size_t off = 0; off < sizeof(GridCell); off += 64) PrefetchForWrite(p + off);
+      PrefetchForWrite(&cell_work_[idx]);
+      if (idx < shard_work_.size()) PrefetchForWrite(&shard_work_[idx]);
     }
     if (i + kArraysAhead < end) {
       const GridCell& cell = *cells_[touched_[i + kArraysAhead]];

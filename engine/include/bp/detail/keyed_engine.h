@@ -68,6 +68,7 @@
 #include "bp/detail/huge_alloc.h"
 #include "bp/detail/key_index.h"
 #include "bp/detail/pair_tracker.h"
+#include "bp/detail/prefetch.h"
 #include "bp/detail/stopwatch.h"
 #include "bp/detail/worker_pool.h"
 #include "bp/object_options.h"
@@ -125,7 +126,7 @@ class KeyedEngine final : public Broadphase<Core::kDim, typename Core::Coord, Ke
         [&](size_t i, uint32_t tag, uint32_t /*hint: new keys are mostly absent*/) {
           constexpr size_t kFreeAhead = 8;
           if (free_.size() > kFreeAhead) {
-            __builtin_prefetch(&slots_[free_[free_.size() - 1 - kFreeAhead]], 1);
+            PrefetchForWrite(&slots_[free_[free_.size() - 1 - kFreeAhead]]);
           }
           return InsertTagged(items[i].key, tag, items[i].box,
                               options.empty() ? kDefault : options[i]);
@@ -756,9 +757,9 @@ class KeyedEngine final : public Broadphase<Core::kDim, typename Core::Coord, Ke
         const uint32_t ahead = resolved_[i + kAhead].handle;
         if (ahead < slots_.size()) {
           const char* slot = reinterpret_cast<const char*>(&slots_[ahead]);
-          __builtin_prefetch(slot, 1);
-          __builtin_prefetch(slot + sizeof(Slot) - 1, 1);
-          if (margin_ > T{}) __builtin_prefetch(&fat_[ahead], 1);
+          PrefetchForWrite(slot);
+          PrefetchForWrite(slot + sizeof(Slot) - 1);
+          if (margin_ > T{}) PrefetchForWrite(&fat_[ahead]);
         }
       }
       const Resolved& r = resolved_[i];
