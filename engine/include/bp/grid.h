@@ -1160,7 +1160,12 @@ class GridCore {
       }
     }
     GroupUpdates();
-    cell_out_.resize(touched_.size());
+    thread_out_.resize(pool_ != nullptr ? pool_->threads() : 1);
+    for (ThreadOut& to : thread_out_) {
+      to.swaps = to.tests = 0;
+      to.global_sort = false;
+      to.emptied.clear();
+    }
     if (pool_ != nullptr) {
       witnessed_.resize(size_t{pool_->threads()} * tracker_.shards());
       for (auto& w : witnessed_) w.clear();
@@ -1221,7 +1226,7 @@ class GridCore {
   // Applies touched_[i] on pool thread `thread`: runs the cell's core, appends its changes (as
   // global handle pairs) to the thread's buffer, and frees the local handles it erased (after
   // the core has used them). Touches nothing but the cell, its work entries (cell_work_,
-  // shard_work_), cell_out_[i] and the references to the cell of its objects (ClaimLocal,
+  // shard_work_), thread_out_[thread] and the references to the cell of its objects (ClaimLocal,
   // CompactCell).
   void ApplyCell(size_t i, unsigned thread) {
     const uint32_t idx = touched_[i];
@@ -1250,10 +1255,10 @@ class GridCore {
     // Each change goes to this thread's buffer of its pair's shard (see FoldCells).
     const size_t shards = tracker_.shards();
     std::vector<Witnessed>* out = witnessed_.data() + size_t{thread} * shards;
-    CellOut& co = cell_out_[i];
-    co.swaps = s.swaps;
-    co.tests = s.overlap_tests;
-    co.global_sort = s.global_sort;
+    ThreadOut& to = thread_out_[thread];
+    to.swaps += s.swaps;
+    to.tests += s.overlap_tests;
+    to.global_sort = to.global_sort || s.global_sort;
     const auto cell_i = static_cast<uint32_t>(i);
     CellPairs(cell.core).DrainChanges([&](uint32_t a, uint32_t b, bool now) {
       const uint32_t ga = cell.global[a], gb = cell.global[b];
@@ -1265,8 +1270,8 @@ class GridCore {
       cell.free_local.push_back(local);
     }
     cell_work_[idx] = CellWork{};
-    co.emptied = cell.members == 0;
-    if (co.emptied) {
+    if (cell.members == 0) {
+      to.emptied.push_back(cell_i);
       BP_ASSERT(cell.core.live() == 0);
       cell.global.clear();
       cell.free_local.clear();
@@ -1324,7 +1329,22 @@ class GridCore {
     } else {
       for (size_t shard = 0; shard < shards; ++shard) FoldShard(shard);
     }
-    for (size_t i = 0; i < touched_.size(); ++i) FoldCell(i);
+    // The counters, and the cells that emptied, recycled in the order of touched_.
+    emptied_.clear();
+    for (const ThreadOut& to : thread_out_) {
+      swaps_ += to.swaps;
+      tests_ += to.tests;
+      global_ = global_ || to.global_sort;
+      emptied_.insert(emptied_.end(), to.emptied.begin(), to.emptied.end());
+    }
+    std::sort(emptied_.begin(), emptied_.end());
+    for (uint32_t i : emptied_) {
+      const uint32_t idx = touched_[i];
+      GridCell& cell = *cells_[idx];
+      cell_of_.Erase(cell.key);
+      cell.in_use = false;
+      free_cells_.push_back(idx);
+    }
   }
 
   // Starts loading the lines that folding change w (of FoldShard's shard) probes: the overlap
@@ -1385,22 +1405,6 @@ class GridCore {
     }
   }
 #undef BP_GRID_PREFETCH_WITNESS
-
-  // Adds touched_[i]'s counters (its changes are folded by FoldCells); recycles it if it
-  // emptied.
-  void FoldCell(size_t i) {
-    const CellOut& co = cell_out_[i];
-    swaps_ += co.swaps;
-    tests_ += co.tests;
-    global_ = global_ || co.global_sort;
-    if (co.emptied) {
-      const uint32_t idx = touched_[i];
-      GridCell& cell = *cells_[idx];
-      cell_of_.Erase(cell.key);
-      cell.in_use = false;
-      free_cells_.push_back(idx);
-    }
-  }
 
   // One more (add) or one fewer (remove) witness of the pair a, b.
   void Witness(uint32_t a, uint32_t b, bool add) {
@@ -1715,20 +1719,24 @@ class GridCore {
   };
   HugeVector<CellWork> cell_work_;
   // What applying a cell leaves for the fold: its changes, as global handle pairs tagged with
-  // the cell's position in touched_ (Witnessed, in witnessed_), and by that position
-  // (CellOut) its counters and whether it emptied.
+  // the cell's position in touched_ (Witnessed, in witnessed_), and in its thread's ThreadOut
+  // its counters (summed) and, if it emptied, that position.
   struct Witnessed {
     uint32_t a, b;
     uint32_t cell;  // the index in touched_ of the cell that saw the change
     bool now;
   };
-  struct CellOut {
-    bool global_sort = false, emptied = false;
+  // Line-aligned: the threads write theirs at once. (A record per cell, added up serially after,
+  // took 0.08 ms of S1-1M's frame.)
+  struct alignas(64) ThreadOut {
     size_t swaps = 0, tests = 0;
+    bool global_sort = false;
+    std::vector<uint32_t> emptied;
   };
   // Per pool thread and shard of the tracker: witnessed_[thread * shards + shard].
   std::vector<std::vector<Witnessed>> witnessed_;
-  std::vector<CellOut> cell_out_;
+  std::vector<ThreadOut> thread_out_;  // per pool thread (one without a pool)
+  std::vector<uint32_t> emptied_;      // FoldCells' scratch: the emptied cells' positions
   std::vector<Large> large_;
   std::vector<uint32_t> free_large_;
   std::vector<uint32_t> changed_large_;
