@@ -462,11 +462,13 @@ class KeyedEngine final : public Broadphase<Core::kDim, typename Core::Coord, Ke
   // the index has not changed since (else kNoHandle): see Lookup. On S1-200k that saved a
   // second probe of the key's run per update: 0.2 million instructions per frame net (0.8%).
   // apply returns the item's Status; a refused item is passed to refused (when set) with its
-  // index. Returns the number refused.
+  // index. Returns the number refused. kAhead was 16: 32 took 17-21% off the calls phase
+  // (S1-200k, S1-1M, one thread) and 64 another 5-7% (S1-200k, S1-1M, S3; alternating rounds on
+  // a Zen 5 VM, 2026-11-27): this VM's misses are that long.
   template <class Item, class KeyOf, class Apply>
   size_t ForEachAhead(std::span<const Item> items, KeyOf&& key_of,
                       const typename Base::RefusedFn& refused, Apply&& apply) {
-    constexpr size_t kAhead = 16;
+    constexpr size_t kAhead = 64;
     uint32_t tags[kAhead];
     uint32_t guesses[kAhead];
     uint64_t versions[kAhead];
