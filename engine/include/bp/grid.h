@@ -474,19 +474,19 @@ class GridCore {
   }
 
   // New objects land anywhere, and churn recycles handles from anywhere: each one's record and
-  // the cell-table line of the first cell it enters are prefetched 8 inserts ahead, then, when
-  // local handles are allocated now (see defer_locals_), that cell's record 4 ahead (found
+  // the cell-table line of the first cell it enters are prefetched 16 inserts ahead, then, when
+  // local handles are allocated now (see defer_locals_), that cell's record 8 ahead (found
   // through the table, which is not changed).
   void InsertObjects(std::span<const HandleBox<kDim, Coord>> inserts) {
     const size_t n = inserts.size();
     for (size_t i = 0; i < n; ++i) {
-      if (i + 8 < n) {
-        const HandleBox<kDim, Coord>& ahead = inserts[i + 8];
+      if (i + 16 < n) {
+        const HandleBox<kDim, Coord>& ahead = inserts[i + 16];
         if (ahead.handle < objects_.size()) Prefetch(&objects_[ahead.handle]);
         if (const void* line = cell_of_.HomeLine(FirstCellKey(ahead.box))) Prefetch(line);
       }
-      if (i + 4 < n && !defer_locals_) {
-        const uint32_t* idx = std::as_const(cell_of_).Find(FirstCellKey(inserts[i + 4].box));
+      if (i + 8 < n && !defer_locals_) {
+        const uint32_t* idx = std::as_const(cell_of_).Find(FirstCellKey(inserts[i + 8].box));
         if (idx != nullptr && *idx < cells_.size()) Prefetch(cells_[*idx].get());
       }
       InsertObject(inserts[i].handle, inserts[i].box);
@@ -527,9 +527,9 @@ class GridCore {
   void EraseObjects(std::span<const uint32_t> erases) {
     const size_t n = erases.size();
     for (size_t i = 0; i < n; ++i) {
-      if (i + 16 < n) Prefetch(&objects_[erases[i + 16]]);
-      if (i + 8 < n) {
-        const Object& ahead = objects_[erases[i + 8]];
+      if (i + 32 < n) Prefetch(&objects_[erases[i + 32]]);
+      if (i + 16 < n) {
+        const Object& ahead = objects_[erases[i + 16]];
         if (ahead.nrefs != 0) Prefetch(&refs_[ahead.refs]);
       }
       EraseObject(erases[i]);
@@ -704,14 +704,16 @@ class GridCore {
 
   // --- routing updates -------------------------------------------------------------------------
 
-  // Starts loading the records updates[i + 16] and updates[i + 8] read first. Each loop spells
-  // these prefetches out: GCC 12 finds a helper whose only effect is a prefetch pure (a
+  // Starts loading the records updates[i + 32] and updates[i + 16] read first (the grid's
+  // prefetch distances were half these: doubled, S1-1M's routing took 0.86x on one thread and
+  // 0.96x on two, S1-200k's 0.91x; the misses of a Zen 5 VM's memory are that long). Each loop
+  // spells these prefetches out: GCC 12 finds a helper whose only effect is a prefetch pure (a
   // prefetch touches no memory it models) and deletes the calls to it.
 #define BP_GRID_PREFETCH_UPDATE(updates, i, end)                           \
   do {                                                                     \
-    if ((i) + 16 < (end)) Prefetch(&objects_[(updates)[(i) + 16].handle]); \
-    if ((i) + 8 < (end)) {                                                 \
-      const Object& ahead = objects_[(updates)[(i) + 8].handle];           \
+    if ((i) + 32 < (end)) Prefetch(&objects_[(updates)[(i) + 32].handle]); \
+    if ((i) + 16 < (end)) {                                                \
+      const Object& ahead = objects_[(updates)[(i) + 16].handle];          \
       if (ahead.nrefs != 0) Prefetch(&refs_[ahead.refs]);                  \
     }                                                                      \
   } while (false)
@@ -725,11 +727,11 @@ class GridCore {
     routed_.reserve(n);
     for (size_t i = 0; i < n; ++i) {
       BP_GRID_PREFETCH_UPDATE(updates, i, n);
-      if (i + 4 < n && cell_work_.size() > kWorkInCache) {
+      if (i + 8 < n && cell_work_.size() > kWorkInCache) {
         // A third stage, when the work table outgrows the L2: the work entry of the object's
         // first cell, which routing counts in (S1-1M's routing 0.91; on S3, whose table fits,
         // the loads cost 5%).
-        const Object& ahead = objects_[updates[i + 4].handle];
+        const Object& ahead = objects_[updates[i + 8].handle];
         if (ahead.nrefs != 0) Prefetch(&cell_work_[refs_[ahead.refs].cell]);
       }
       const auto& [h, box] = updates[i];
@@ -846,9 +848,9 @@ class GridCore {
       for (size_t k = 0; k < d.size(); ++k) {
         // Prefetched as in the serial loop: these objects lie all over the table, and without
         // it S1-1M's 3 400 deferred updates a frame took 1.0 ms, 0.7 with it.
-        if (k + 16 < d.size()) Prefetch(&objects_[updates[d[k + 16] & ~kKeptRouted].handle]);
-        if (k + 8 < d.size()) {
-          const Object& ahead = objects_[updates[d[k + 8] & ~kKeptRouted].handle];
+        if (k + 32 < d.size()) Prefetch(&objects_[updates[d[k + 32] & ~kKeptRouted].handle]);
+        if (k + 16 < d.size()) {
+          const Object& ahead = objects_[updates[d[k + 16] & ~kKeptRouted].handle];
           if (ahead.nrefs != 0) Prefetch(&refs_[ahead.refs]);
         }
         const HandleBox<kDim, Coord>& u = updates[d[k] & ~kKeptRouted];
@@ -1126,8 +1128,8 @@ class GridCore {
 
   // Writes each of v's updates at its cell's write cursor in dst (cursor(cell), advanced). When
   // the cursors' table is far from the cache (far), cells and cursors lie all over a table
-  // larger than the L2: the cursor's line is prefetched 16 updates ahead, then the line the
-  // cursor points at 8 ahead, for writing (on a table that fits, the prefetches measured a
+  // larger than the L2: the cursor's line is prefetched 32 updates ahead, then the line the
+  // cursor points at 16 ahead, for writing (on a table that fits, the prefetches measured a
   // cost: S1-200k's cells phase 1.06).
   template <class Cursor>
   static void ScatterRouted(const HugeVector<Routed>& v, HandleBox<kDim, Coord>* dst, bool far,
@@ -1139,8 +1141,8 @@ class GridCore {
       return;
     }
     for (size_t k = 0; k < n; ++k) {
-      if (k + 16 < n) __builtin_prefetch(&cursor(r[k + 16].cell));
-      if (k + 8 < n) PrefetchForWrite(dst + cursor(r[k + 8].cell));
+      if (k + 32 < n) __builtin_prefetch(&cursor(r[k + 32].cell));
+      if (k + 16 < n) PrefetchForWrite(dst + cursor(r[k + 16].cell));
       dst[cursor(r[k].cell)++] = r[k].update;
     }
   }
@@ -1367,7 +1369,7 @@ class GridCore {
   // tracker's sets and the witness table: the lines a change probes are prefetched kFoldAhead
   // changes ahead.
   void FoldShard(size_t shard) {
-    static constexpr size_t kFoldAhead = 16;
+    static constexpr size_t kFoldAhead = 32;
     const size_t shards = tracker_.shards();
     const size_t threads = witnessed_.size() / shards;
     // A cursor over the merged buffers (a position in each thread's): next returns the change

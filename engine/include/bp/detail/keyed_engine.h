@@ -518,7 +518,7 @@ class KeyedEngine final : public Broadphase<Core::kDim, typename Core::Coord, Ke
     const auto& drained = drained_[now];
     std::vector<std::pair<Key, Key>>* out = now == 1 ? &collides_ : &uncollides_;
     out->clear();
-    constexpr size_t kKeysAhead = 16;
+    constexpr size_t kKeysAhead = 32;
     for (size_t i = 0; i < drained.size(); ++i) {
       if (i + kKeysAhead < drained.size()) {
         __builtin_prefetch(&slots_[drained[i + kKeysAhead].a].key);
@@ -541,9 +541,9 @@ class KeyedEngine final : public Broadphase<Core::kDim, typename Core::Coord, Ke
   // prefetched from the key's home.
   void CommitErases() {
     for (size_t i = 0; i < erases_.size(); ++i) {
-      if (i + 16 < erases_.size()) __builtin_prefetch(&slots_[erases_[i + 16]]);
-      if (i + 8 < erases_.size()) {
-        if (const void* line = index_.HomeLine(KeyIndex<Key>::Tag(slots_[erases_[i + 8]].key))) {
+      if (i + 32 < erases_.size()) __builtin_prefetch(&slots_[erases_[i + 32]]);
+      if (i + 16 < erases_.size()) {
+        if (const void* line = index_.HomeLine(KeyIndex<Key>::Tag(slots_[erases_[i + 16]].key))) {
           // Addresses past the table's end are harmless to prefetch (no fault, no access).
           const auto at = reinterpret_cast<uintptr_t>(line);
           __builtin_prefetch(line);
