@@ -4,8 +4,9 @@
 //    two vCPUs that are hyper-threads of one core give about 1x, two cores about 2x);
 //  - "chase": eight independent random walks over a 256 MB table (bound by memory latency and
 //    the misses a core keeps in flight: what a broadphase frame mostly waits on);
-//  - "gather": random 64-byte lines of the table read with a prefetch 16 reads ahead, as the
-//    grid routes its updates (bound by the misses the memory system serves at once);
+//  - "gather": random 64-byte lines of the table read with a prefetch --ahead reads ahead (16 by
+//    default), as the grid routes its updates (bound by the misses the memory system serves at
+//    once: with a distance long enough, one thread alone may take most of them);
 //  - "scatter": the same lines read, changed and written back, as routing stores each moved
 //    object's box (each line also costs a write-back).
 // The README quotes it next to the grid's two-thread ratios: if the machine scales and the
@@ -47,8 +48,9 @@ uint64_t Chase(const std::vector<uint32_t>& next, uint64_t rounds) {
 }
 
 // Reads (and with write, changes) `count` random lines of `table` from a stream of hashed
-// indices, each prefetched 16 accesses ahead.
-uint64_t Lines(std::vector<uint32_t>& table, uint64_t count, uint64_t seed, bool write) {
+// indices, each prefetched `ahead` accesses ahead.
+uint64_t Lines(std::vector<uint32_t>& table, uint64_t count, uint64_t seed, bool write,
+               uint64_t ahead) {
   const uint64_t lines = table.size() / 16;
   auto line = [&](uint64_t i) {
     uint64_t z = (seed + i) * 0x9E3779B97F4A7C15ull;
@@ -58,9 +60,9 @@ uint64_t Lines(std::vector<uint32_t>& table, uint64_t count, uint64_t seed, bool
   uint64_t s = 0;
   for (uint64_t i = 0; i < count; ++i) {
     if (write) {
-      __builtin_prefetch(&table[line(i + 16)], 1);  // the argument must be a constant
+      __builtin_prefetch(&table[line(i + ahead)], 1);  // the argument must be a constant
     } else {
-      __builtin_prefetch(&table[line(i + 16)], 0);
+      __builtin_prefetch(&table[line(i + ahead)], 0);
     }
     uint32_t* p = &table[line(i)];
     s += p[0] + p[15];
@@ -87,11 +89,13 @@ double Run(unsigned threads, const std::function<uint64_t()>& f) {
 
 int main(int argc, char** argv) {
   CLI::App app("bpprobe: the machine's own scaling from 1 to N threads (JSON lines)");
-  unsigned threads = 2, repeats = 3;
+  unsigned threads = 2, repeats = 3, ahead = 16;
   app.add_option("-t,--threads", threads, "threads of the parallel run")
       ->check(CLI::Range(2u, 256u));
   app.add_option("-r,--repeats", repeats, "rounds (each: 1 thread, then N)")
       ->check(CLI::Range(1u, 100u));
+  app.add_option("--ahead", ahead, "gather and scatter: prefetch distance, in reads")
+      ->check(CLI::Range(0u, 4096u));
   CLI11_PARSE(app, argc, argv);
 
   // A random cyclic permutation (Sattolo): one walk visits the whole table.
@@ -107,17 +111,21 @@ int main(int argc, char** argv) {
   std::atomic<uint64_t> seed{1};
   const std::function<uint64_t()> kernels[] = {
       [] { return Alu(uint64_t{200} << 20); }, [&] { return Chase(next, uint64_t{4} << 20); },
-      [&] { return Lines(next, uint64_t{16} << 20, seed.fetch_add(uint64_t{1} << 40), false); },
-      [&] { return Lines(next, uint64_t{16} << 20, seed.fetch_add(uint64_t{1} << 40), true); }};
+      [&] {
+        return Lines(next, uint64_t{16} << 20, seed.fetch_add(uint64_t{1} << 40), false, ahead);
+      },
+      [&] {
+        return Lines(next, uint64_t{16} << 20, seed.fetch_add(uint64_t{1} << 40), true, ahead);
+      }};
   const char* names[] = {"alu", "chase", "gather", "scatter"};
   for (unsigned r = 0; r < repeats; ++r) {
     for (size_t k = 0; k < std::size(kernels); ++k) {
       const double one = Run(1, kernels[k]);
       const double many = Run(threads, kernels[k]);
       std::printf(
-          "{\"kernel\":\"%s\",\"round\":%u,\"threads\":%u,\"one_s\":%.4f,\"parallel_s\":%.4f,"
-          "\"throughput_ratio\":%.3f}\n",
-          names[k], r + 1, threads, one, many, threads * one / many);
+          "{\"kernel\":\"%s\",\"round\":%u,\"threads\":%u,\"ahead\":%u,\"one_s\":%.4f,"
+          "\"parallel_s\":%.4f,\"throughput_ratio\":%.3f}\n",
+          names[k], r + 1, threads, ahead, one, many, threads * one / many);
       std::fflush(stdout);
     }
   }
