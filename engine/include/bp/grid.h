@@ -915,13 +915,36 @@ class GridCore {
   static constexpr uint32_t kKeptRouted = uint32_t{1} << 31;
 
   // Adds the shards' counts of the cells of `part` to their shard_work_ entries, marks the cells
-  // touched (those newly touched into part_touched_[part], in shard order), counts the part's
-  // updates (into part_base_[part]) and zeroes the shards' counts. Writes only the part's cells'
-  // entries: the parts merge in parallel.
+  // touched (those newly touched into part_touched_[part], in shard order, or in cell order when
+  // most are touched), counts the part's updates (into part_base_[part]) and zeroes the shards'
+  // counts. Writes only the part's cells' entries: the parts merge in parallel.
   void MergeCounts(size_t part) {
     std::vector<uint32_t>& out = part_touched_[part];
     out.clear();
     uint32_t total = 0;
+    const uint32_t first = PartBegin(part), last = PartBegin(part + 1);
+    size_t listed = 0;
+    for (const Shard& sh : shards_) listed += sh.touched[part].size();
+    if (listed * 2 > last - first) {
+      // Most of the part's cells are touched (S1-1M): one sweep of the part in cell order, which
+      // reads the counts and work entries in memory order (through the lists, in routing order,
+      // the merge took 0.24 ms of a two-thread frame on both threads).
+      for (uint32_t idx = first; idx < last; ++idx) {
+        uint32_t count = 0;
+        for (Shard& sh : shards_) count += std::exchange(sh.counts[idx], 0);
+        if (count == 0) continue;
+        shard_work_[idx].count += count;
+        total += count;
+        CellWork& work = cell_work_[idx];
+        if (!work.touched) {
+          work.touched = true;
+          out.push_back(idx);
+        }
+      }
+      for (Shard& sh : shards_) sh.touched[part].clear();
+      part_base_[part] = total;
+      return;
+    }
     for (Shard& sh : shards_) {
       for (uint32_t idx : sh.touched[part]) {
         shard_work_[idx].count += sh.counts[idx];
