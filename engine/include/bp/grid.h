@@ -29,7 +29,8 @@
 //
 // With `threads` > 1 the touched cells are applied by a worker pool (cells share nothing); their
 // changes are then folded into the witness counts by shard of the pair sets, one shard per
-// thread, each in the order of the touched list, so events do not depend on the thread count.
+// thread. The events do not depend on the thread count: neither the counts nor the sets depend
+// on the order of the fold (see FoldCells).
 //
 // The cell size is either given or chosen from the objects (about `objects_per_cell` objects per
 // cell over the bounds of the box centres); it is chosen again, and every cell rebuilt, when the
@@ -1171,10 +1172,10 @@ class GridCore {
   }
 
   // Applies every touched cell's buffered operations (in parallel: cells share nothing), then
-  // folds each cell's overlap changes into the witness counts in the order of touched_, which
-  // does not depend on the thread count. A cell's changes leave it already translated to global
-  // handles, into its thread's buffer, so the serial fold reads them sequentially instead of
-  // touching each cell again.
+  // folds each cell's overlap changes into the witness counts (FoldCells: in an order that may
+  // depend on the thread count, which the events do not). A cell's changes leave it already
+  // translated to global handles, into its thread's buffer, so the fold reads them sequentially
+  // instead of touching each cell again.
   void QueryCells() {
     cells_queried_ = touched_.size();
     if (touched_.size() * 4 > cells_.size()) {
@@ -1213,7 +1214,7 @@ class GridCore {
         beside_ = nullptr;
       }
     } else {
-      // One thread: the same, on this thread (the order of the folds, touched_, is the same).
+      // One thread: the same, on this thread.
       witnessed_.resize(1);
       witnessed_[0].clear();
       for (size_t i = 0; i < touched_.size(); ++i) {
@@ -1288,7 +1289,7 @@ class GridCore {
     CellPairs(cell.core).DrainChanges([&](uint32_t a, uint32_t b, bool now) {
       const uint32_t ga = cell.global[a], gb = cell.global[b];
       const size_t shard = shards == 1 ? 0 : tracker_.ShardOf(HandlePair(ga, gb));
-      out[shard].push_back(Witnessed{ga, gb, cell_i, now});
+      out[shard].push_back(Witnessed{ga, gb, now});
     });
     for (uint32_t local : erases) {
       cell.global[local] = kNone;
@@ -1337,9 +1338,14 @@ class GridCore {
   // emptied, in the order of touched_. A cell's changes wait in the buffer of the thread that
   // applied it and of each pair's shard of the tracker (ApplyCell). With a pool and enough
   // changes, each shard is folded by one thread (FoldShard): a pair's witness count and sets
-  // lie in its shard alone, and each shard sees its pairs' changes in the order of touched_, as
-  // the serial fold does, so the sets end as it leaves them, whatever the thread count. A
-  // rebuild's recount (see Regrid) folds serially. A change's fold (three probes of hash
+  // lie in its shard alone. The changes are folded in any order (each thread's buffer whole, one
+  // after the other; merging them in the order of touched_ took a fifth of the fold on S1-1M):
+  // the events do not depend on it. A cell removes only a pair it held at the last query, which
+  // the pair's count includes, so no order takes a count below zero; a pair whose count passes
+  // through zero leaves the overlap set and comes back, which the tracker cancels; and the
+  // counts and sets end the same. (The layout of the sets' tables may differ, and with it the
+  // order of ForEachOverlap: it never promised one.) A rebuild's recount (see Regrid) folds
+  // serially. A change's fold (three probes of hash
   // tables) counts as kWitnessWeight routed updates or key look-ups, PoolFor's unit: S1-200k's
   // 2 000-3 000 changes a frame fold faster on two threads than on one (0.52x).
   static constexpr size_t kWitnessWeight = 4;
@@ -1386,47 +1392,19 @@ class GridCore {
     }                                                                            \
   } while (false)
 
-  // Folds the changes of the pairs in tracker shard `shard`, in the order of touched_: the
-  // threads' buffers of the shard each hold their cells' changes in that order (a thread claims
-  // runs of cells in increasing order), and are merged by cell. The pairs land all over the
+  // Folds the changes of the pairs in tracker shard `shard`: the threads' buffers of the shard,
+  // one after the other (see FoldCells: the order does not matter). The pairs land all over the
   // tracker's sets and the witness table: the lines a change probes are prefetched kFoldAhead
   // changes ahead.
   void FoldShard(size_t shard) {
     static constexpr size_t kFoldAhead = 32;
     const size_t shards = tracker_.shards();
-    const size_t threads = witnessed_.size() / shards;
-    // A cursor over the merged buffers (a position in each thread's): next returns the change
-    // of the lowest cell.
-    auto next = [&](std::vector<size_t>& at_of) -> const Witnessed* {
-      const Witnessed* best = nullptr;
-      size_t best_t = 0;
-      for (size_t t = 0; t < threads; ++t) {
-        const std::vector<Witnessed>& buf = witnessed_[t * shards + shard];
-        const size_t at = at_of[t];
-        if (at < buf.size() && (best == nullptr || buf[at].cell < best->cell)) {
-          best = &buf[at];
-          best_t = t;
-        }
-      }
-      if (best != nullptr) ++at_of[best_t];
-      return best;
-    };
-    if (threads == 1) {
-      // One buffer, already in cell order.
-      const std::vector<Witnessed>& buf = witnessed_[shard];
+    for (size_t at = shard; at < witnessed_.size(); at += shards) {
+      const std::vector<Witnessed>& buf = witnessed_[at];
       for (size_t k = 0; k < buf.size(); ++k) {
         if (k + kFoldAhead < buf.size()) BP_GRID_PREFETCH_WITNESS(&buf[k + kFoldAhead]);
         WitnessIn(shard, buf[k].a, buf[k].b, buf[k].now);
       }
-      return;
-    }
-    std::vector<size_t> ahead(threads, 0), here(threads, 0);
-    for (size_t k = 0; k < kFoldAhead; ++k) {
-      if (const Witnessed* w = next(ahead)) BP_GRID_PREFETCH_WITNESS(w);
-    }
-    while (const Witnessed* w = next(here)) {
-      if (const Witnessed* a = next(ahead)) BP_GRID_PREFETCH_WITNESS(a);
-      WitnessIn(shard, w->a, w->b, w->now);
     }
   }
 #undef BP_GRID_PREFETCH_WITNESS
@@ -1743,12 +1721,11 @@ class GridCore {
     bool touched = false;
   };
   HugeVector<CellWork> cell_work_;
-  // What applying a cell leaves for the fold: its changes, as global handle pairs tagged with
-  // the cell's position in touched_ (Witnessed, in witnessed_), and in its thread's ThreadOut
-  // its counters (summed) and, if it emptied, that position.
+  // What applying a cell leaves for the fold: its changes, as global handle pairs (Witnessed, in
+  // witnessed_), and in its thread's ThreadOut its counters (summed) and, if it emptied, its
+  // position in touched_.
   struct Witnessed {
     uint32_t a, b;
-    uint32_t cell;  // the index in touched_ of the cell that saw the change
     bool now;
   };
   // Line-aligned: the threads write theirs at once. (A record per cell, added up serially after,
