@@ -38,7 +38,8 @@
 //
 // Thread safety: none for callers (see bp/broadphase.h); the pool's threads apply one cell each,
 // route runs of updates (the first after the erases), or scatter parts of the cells (and run
-// Apply's beside task) beside the serial routing (RouteOnPool).
+// Apply's beside task) beside the serial routing (RouteOnPool); without a parallel routing,
+// Apply's beside task runs among the cells' applies.
 // Invariants (checked by Validate, in detail/grid_validate.h):
 //  1. A live small object's refs list, in row-major order over its cell range, one (cell, local)
 //     per cell; cells_[cell] has that coordinate and global[local] is the object.
@@ -101,7 +102,8 @@ struct GridOptions {
   /// An object whose box would cover more cells than this is kept in the large set instead.
   uint32_t max_cells_per_object = 16;
   /// Threads that apply the touched cells of a query (the caller's included). Events do not
-  /// depend on it: cells are independent, and their changes are folded in one fixed order.
+  /// depend on it: cells are independent, and their changes fold to the same counts and sets
+  /// in any order (see GridCore::FoldCells).
   unsigned threads = 1;
   /// With threads > 1, a query with at least this many updates routes them in parallel, and an
   /// UpdateMany or EraseMany of at least this many items looks their keys up in parallel

@@ -18,8 +18,8 @@
 namespace bp::detail {
 
 #if defined(__x86_64__) && (defined(__GNUC__) || defined(__clang__))
-/// True iff the CPU has PREFETCHW (CPUID 0x80000001, ECX bit 8: every AMD64 CPU of AMD's, and
-/// Intel's since Broadwell).
+/// True iff the CPU reports PREFETCHW (CPUID 0x80000001, ECX bit 8: AMD's CPUs since family
+/// 10h, Intel's since Broadwell; a CPU that does not, such as AMD's K8, gets the read prefetch).
 inline bool CpuHasPrefetchW() {
   static const bool has = [] {
     unsigned a = 0, b = 0, c = 0, d = 0;
