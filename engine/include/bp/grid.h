@@ -322,6 +322,12 @@ class GridCore {
 
   static void Prefetch(const void* p) { __builtin_prefetch(p); }
 
+  // After a pool loop ran Apply's beside task: it is not run again in this query.
+  void BesideRan() {
+    beside_ran_ = true;
+    beside_ = nullptr;
+  }
+
   // --- cell coordinates ----------------------------------------------------------------------
 
   // The size, and an origin near middle on a multiple of the size (so that cell boundaries stay
@@ -832,10 +838,7 @@ class GridCore {
         }
       }
     });
-    if (extra != 0) {
-      beside_ran_ = true;
-      beside_ = nullptr;
-    }
+    if (extra != 0) BesideRan();
     // Every update the serial pass met was a migration whose kept cells its run routed (or an
     // object turned large, which leaves its cells): none was routed serially (see ApplyCell).
     BP_ASSERT(routed_.empty());
@@ -925,6 +928,15 @@ class GridCore {
     std::vector<uint32_t>& out = part_touched_[part];
     out.clear();
     uint32_t total = 0;
+    const auto merge = [&](uint32_t idx, uint32_t count) {
+      shard_work_[idx].count += count;
+      total += count;
+      CellWork& work = cell_work_[idx];
+      if (!work.touched) {
+        work.touched = true;
+        out.push_back(idx);
+      }
+    };
     const uint32_t first = PartBegin(part), last = PartBegin(part + 1);
     size_t listed = 0;
     for (const Shard& sh : shards_) listed += sh.touched[part].size();
@@ -935,32 +947,14 @@ class GridCore {
       for (uint32_t idx = first; idx < last; ++idx) {
         uint32_t count = 0;
         for (Shard& sh : shards_) count += std::exchange(sh.counts[idx], 0);
-        if (count == 0) continue;
-        shard_work_[idx].count += count;
-        total += count;
-        CellWork& work = cell_work_[idx];
-        if (!work.touched) {
-          work.touched = true;
-          out.push_back(idx);
-        }
+        if (count != 0) merge(idx, count);
       }
-      for (Shard& sh : shards_) sh.touched[part].clear();
-      part_base_[part] = total;
-      return;
-    }
-    for (Shard& sh : shards_) {
-      for (uint32_t idx : sh.touched[part]) {
-        shard_work_[idx].count += sh.counts[idx];
-        total += sh.counts[idx];
-        sh.counts[idx] = 0;
-        CellWork& work = cell_work_[idx];
-        if (!work.touched) {
-          work.touched = true;
-          out.push_back(idx);
-        }
+    } else {
+      for (Shard& sh : shards_) {
+        for (uint32_t idx : sh.touched[part]) merge(idx, std::exchange(sh.counts[idx], 0));
       }
-      sh.touched[part].clear();
     }
+    for (Shard& sh : shards_) sh.touched[part].clear();
     part_base_[part] = total;
   }
 
@@ -1211,10 +1205,7 @@ class GridCore {
                              ApplyCell(i, t);
                            }
                          });
-      if (extra != 0) {  // once: a rebuild (Regrid) queries the cells again
-        beside_ran_ = true;
-        beside_ = nullptr;
-      }
+      if (extra != 0) BesideRan();  // once: a rebuild (Regrid) queries the cells again
     } else {
       // One thread: the same, on this thread.
       witnessed_.resize(1);
@@ -1347,9 +1338,9 @@ class GridCore {
   // through zero leaves the overlap set and comes back, which the tracker cancels; and the
   // counts and sets end the same. (The layout of the sets' tables may differ, and with it the
   // order of ForEachOverlap: it never promised one.) A rebuild's recount (see Regrid) folds
-  // serially. A change's fold (three probes of hash
-  // tables) counts as kWitnessWeight routed updates or key look-ups, PoolFor's unit: S1-200k's
-  // 2 000-3 000 changes a frame fold faster on two threads than on one (0.52x).
+  // serially. A change's fold (three probes of hash tables) counts as kWitnessWeight routed
+  // updates or key look-ups, PoolFor's unit: S1-200k's 2 000-3 000 changes a frame fold faster
+  // on two threads than on one (0.52x).
   static constexpr size_t kWitnessWeight = 4;
   void FoldCells() {
     size_t changes = 0;
