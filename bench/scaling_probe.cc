@@ -8,9 +8,16 @@
 //    default), as the grid routes its updates (bound by the misses the memory system serves at
 //    once: with a distance long enough, one thread alone may take most of them);
 //  - "scatter": the same lines read, changed and written back, as routing stores each moved
-//    object's box (each line also costs a write-back).
+//    object's box (each line also costs a write-back);
+//  - "stream": the table read front to back (bound by the memory system's bandwidth);
+//  - "chunks": random 2 KiB chunks of the table read whole, 4 chunks prefetched ahead, and half
+//    of their lines written, as the dense cells' apply reads a cell's rows and writes its changed
+//    slots' rows and pair bits (S1-1M: about 51 slots, 1.2 KiB of rows and 0.3 of pair bits a
+//    cell, most of them written): bound by the lines the memory system reads and writes back
+//    at once.
 // The README quotes it next to the grid's two-thread ratios: if the machine scales and the
 // engine does not, the engine's serial part is the bound.
+#include <algorithm>
 #include <atomic>
 #include <chrono>
 #include <cstdint>
@@ -71,6 +78,39 @@ uint64_t Lines(std::vector<uint32_t>& table, uint64_t count, uint64_t seed, bool
   return s;
 }
 
+// Sums the table front to back `passes` times, from a start that seed picks.
+uint64_t Stream(const std::vector<uint32_t>& table, uint64_t passes, uint64_t seed) {
+  const size_t n = table.size();
+  const size_t start = static_cast<size_t>((seed >> 40) * 7919 % 16) * (n / 16);
+  uint64_t s = 0;
+  for (uint64_t pass = 0; pass < passes; ++pass) {
+    for (size_t i = start; i < n; ++i) s += table[i];
+    for (size_t i = 0; i < start; ++i) s += table[i];
+  }
+  return s;
+}
+
+// Reads `count` random chunks of 32 lines of `table` whole (each line's first and last word),
+// every line of the chunk 4 chunks ahead prefetched, and changes every other line of each.
+uint64_t Chunks(std::vector<uint32_t>& table, uint64_t count, uint64_t seed) {
+  constexpr uint64_t kLines = 32, kAhead = 4;
+  const uint64_t chunks = table.size() / (16 * kLines);
+  auto chunk = [&](uint64_t i) {
+    uint64_t z = (seed + i) * 0x9E3779B97F4A7C15ull;
+    z = (z ^ (z >> 31)) * 0xBF58476D1CE4E5B9ull;
+    return (z ^ (z >> 29)) % chunks * 16 * kLines;
+  };
+  uint64_t s = 0;
+  for (uint64_t i = 0; i < count; ++i) {
+    const uint32_t* ahead = &table[chunk(i + kAhead)];
+    for (uint64_t l = 0; l < kLines; ++l) __builtin_prefetch(ahead + 16 * l);
+    uint32_t* p = &table[chunk(i)];
+    for (uint64_t l = 0; l < kLines; ++l) s += p[16 * l] + p[16 * l + 15];
+    for (uint64_t l = 0; l < kLines; l += 2) p[16 * l + 1] += 1;
+  }
+  return s;
+}
+
 // Seconds for `threads` threads each running f once, all at the same time.
 double Run(unsigned threads, const std::function<uint64_t()>& f) {
   std::vector<uint64_t> out(threads);
@@ -90,12 +130,15 @@ double Run(unsigned threads, const std::function<uint64_t()>& f) {
 int main(int argc, char** argv) {
   CLI::App app("bpprobe: the machine's own scaling from 1 to N threads (JSON lines)");
   unsigned threads = 2, repeats = 3, ahead = 16;
+  std::vector<std::string> only;
   app.add_option("-t,--threads", threads, "threads of the parallel run")
       ->check(CLI::Range(2u, 256u));
   app.add_option("-r,--repeats", repeats, "rounds (each: 1 thread, then N)")
       ->check(CLI::Range(1u, 100u));
   app.add_option("--ahead", ahead, "gather and scatter: prefetch distance, in reads")
       ->check(CLI::Range(0u, 4096u));
+  app.add_option("-k,--kernels", only, "the kernels to run (default: all)")
+      ->check(CLI::IsMember({"alu", "chase", "gather", "scatter", "stream", "chunks"}));
   CLI11_PARSE(app, argc, argv);
 
   // A random cyclic permutation (Sattolo): one walk visits the whole table.
@@ -110,16 +153,20 @@ int main(int argc, char** argv) {
   }
   std::atomic<uint64_t> seed{1};
   const std::function<uint64_t()> kernels[] = {
-      [] { return Alu(uint64_t{200} << 20); }, [&] { return Chase(next, uint64_t{4} << 20); },
+      [] { return Alu(uint64_t{200} << 20); },
+      [&] { return Chase(next, uint64_t{4} << 20); },
       [&] {
         return Lines(next, uint64_t{16} << 20, seed.fetch_add(uint64_t{1} << 40), false, ahead);
       },
       [&] {
         return Lines(next, uint64_t{16} << 20, seed.fetch_add(uint64_t{1} << 40), true, ahead);
-      }};
-  const char* names[] = {"alu", "chase", "gather", "scatter"};
+      },
+      [&] { return Stream(next, 16, seed.fetch_add(uint64_t{1} << 40)); },
+      [&] { return Chunks(next, uint64_t{1} << 20, seed.fetch_add(uint64_t{1} << 40)); }};
+  const char* names[] = {"alu", "chase", "gather", "scatter", "stream", "chunks"};
   for (unsigned r = 0; r < repeats; ++r) {
     for (size_t k = 0; k < std::size(kernels); ++k) {
+      if (!only.empty() && std::find(only.begin(), only.end(), names[k]) == only.end()) continue;
       const double one = Run(1, kernels[k]);
       const double many = Run(threads, kernels[k]);
       std::printf(

@@ -146,7 +146,7 @@ class GridCore {
 
   void Apply(std::span<const uint32_t> erases, std::span<const HandleBox<kDim, Coord>> updates,
              std::span<const HandleBox<kDim, Coord>> inserts) {
-    swaps_ = tests_ = cells_queried_ = pool_routed_ = 0;
+    swaps_ = tests_ = cells_queried_ = pool_routed_ = worker_cells_ = 0;
     global_ = rebuilt_ = false;
     if (!placed_ && !inserts.empty()) {
       // First objects: choose the origin, and the automatic size, from them.
@@ -218,7 +218,7 @@ class GridCore {
     out->large_objects = large_count_;
     out->cell_size = cell_size_;
     out->threads = pool_ != nullptr ? pool_->threads() : 1;
-    out->worker_cells = pool_ != nullptr ? pool_->last_on_workers() : 0;
+    out->worker_cells = worker_cells_;
     out->pool_routed = pool_routed_;
     out->route_ms = route_ms_;
     out->cells_ms = cells_ms_;
@@ -242,9 +242,9 @@ class GridCore {
 
  private:
   static constexpr uint32_t kNone = ~uint32_t{0};
-  // Touched cells a pool thread claims at a time: long enough runs to prefetch the next cell
-  // within, short enough to balance uneven cells.
-  static constexpr size_t kCellRun = 32;
+  // Touched cells a pool thread claims at a time (see CellRuns): from kMaxCellRun, while many
+  // are left, down to kCellRun at the end.
+  static constexpr size_t kCellRun = 32, kMaxCellRun = 512;
   // A parallel routing's parts of the cells per thread (see RouteOnPool): more than one, so that
   // the thread done first with the serial pass or a part can take another part.
   static constexpr size_t kPartsPerThread = 2;
@@ -483,9 +483,10 @@ class GridCore {
   }
 
   // New objects land anywhere, and churn recycles handles from anywhere: each one's record and
-  // the cell-table line of the first cell it enters are prefetched 16 inserts ahead, then, when
-  // local handles are allocated now (see defer_locals_), that cell's record 8 ahead (found
-  // through the table, which is not changed).
+  // the cell-table line of the first cell it enters are prefetched 16 inserts ahead, then that
+  // cell's work entry (for writing) and, when local handles are allocated now (see
+  // defer_locals_), its record 8 ahead (found through the table, which is not changed). On a
+  // parallel routing the work entries were last written by either thread (MergeCounts).
   void InsertObjects(std::span<const HandleBox<kDim, Coord>> inserts) {
     const size_t n = inserts.size();
     for (size_t i = 0; i < n; ++i) {
@@ -494,9 +495,14 @@ class GridCore {
         if (ahead.handle < objects_.size()) Prefetch(&objects_[ahead.handle]);
         if (const void* line = cell_of_.HomeLine(FirstCellKey(ahead.box))) Prefetch(line);
       }
-      if (i + 8 < n && !defer_locals_) {
+      if (i + 8 < n) {
+        // The first cell's work entry, which routing the insert writes (Touch); and its record
+        // when the local handle is allocated now.
         const uint32_t* idx = std::as_const(cell_of_).Find(FirstCellKey(inserts[i + 8].box));
-        if (idx != nullptr && *idx < cells_.size()) Prefetch(cells_[*idx].get());
+        if (idx != nullptr && *idx < cells_.size()) {
+          if (*idx < cell_work_.size()) PrefetchForWrite(&cell_work_[*idx]);
+          if (!defer_locals_) Prefetch(cells_[*idx].get());
+        }
       }
       InsertObject(inserts[i].handle, inserts[i].box);
     }
@@ -531,8 +537,10 @@ class GridCore {
   }
 
   // Churn picks its victims anywhere in the table: each erased object's records are prefetched
-  // ahead in the order they depend on each other (the object, then its cell references; the
-  // cells it leaves are not touched until they are applied).
+  // ahead in the order they depend on each other (the object, then its cell references, then
+  // the work entries of the cells it leaves, which routing its erases writes; the cells
+  // themselves are not touched until they are applied). The work entries took S1-1M's erases
+  // (two threads, in the first routing run) from 0.26 to 0.215 ms.
   void EraseObjects(std::span<const uint32_t> erases) {
     const size_t n = erases.size();
     for (size_t i = 0; i < n; ++i) {
@@ -540,6 +548,13 @@ class GridCore {
       if (i + 16 < n) {
         const Object& ahead = objects_[erases[i + 16]];
         if (ahead.nrefs != 0) Prefetch(&refs_[ahead.refs]);
+      }
+      if (i + 8 < n) {
+        // The work entries of its cells, which routing the erases writes (Touch).
+        const Object& ahead = objects_[erases[i + 8]];
+        for (uint32_t k = 0; k < ahead.nrefs; ++k) {
+          PrefetchForWrite(&cell_work_[refs_[ahead.refs + k].cell]);
+        }
       }
       EraseObject(erases[i]);
     }
@@ -858,6 +873,13 @@ class GridCore {
         if (k + 16 < d.size()) {
           const Object& ahead = objects_[updates[d[k + 16] & ~kKeptRouted].handle];
           if (ahead.nrefs != 0) Prefetch(&refs_[ahead.refs]);
+        }
+        if (k + 8 < d.size()) {
+          // The work entries of the cells it may leave, which routing the erases writes.
+          const Object& ahead = objects_[updates[d[k + 8] & ~kKeptRouted].handle];
+          for (uint32_t j = 0; j < ahead.nrefs; ++j) {
+            PrefetchForWrite(&cell_work_[refs_[ahead.refs + j].cell]);
+          }
         }
         const HandleBox<kDim, Coord>& u = updates[d[k] & ~kKeptRouted];
         UpdateObject(u.handle, u.box, (d[k] & kKeptRouted) != 0);
@@ -1184,7 +1206,7 @@ class GridCore {
     GroupUpdates();
     thread_out_.resize(pool_ != nullptr ? pool_->threads() : 1);
     for (ThreadOut& to : thread_out_) {
-      to.swaps = to.tests = 0;
+      to.swaps = to.tests = to.cells = 0;
       to.global_sort = false;
       to.emptied.clear();
     }
@@ -1194,17 +1216,25 @@ class GridCore {
       // Index 0 is Apply's beside task when there is one and no parallel routing ran it (see
       // Apply), the cells' follow: the pool's dynamic runs balance it with them.
       const size_t extra = beside_ != nullptr ? 1 : 0;
-      pool_->ParallelFor(touched_.size() + extra, kCellRun,
+      CellRuns();
+      pool_->ParallelFor(cell_runs_.size() - 1 + extra, 1,
                          [this, extra](size_t begin, size_t end, unsigned t) {
-                           if (begin < extra) {
-                             (*beside_)();
-                             begin = extra;
-                           }
-                           for (size_t i = begin - extra; i < end - extra; ++i) {
-                             PrefetchAhead(i, end - extra);
-                             ApplyCell(i, t);
+                           for (size_t task = begin; task < end; ++task) {
+                             if (task < extra) {
+                               (*beside_)();
+                               continue;
+                             }
+                             const size_t from = cell_runs_[task - extra];
+                             const size_t to = cell_runs_[task - extra + 1];
+                             for (size_t i = from; i < to; ++i) {
+                               PrefetchAhead(i, to);
+                               ApplyCell(i, t);
+                             }
+                             thread_out_[t].cells += to - from;
                            }
                          });
+      worker_cells_ = 0;
+      for (size_t t = 1; t < thread_out_.size(); ++t) worker_cells_ += thread_out_[t].cells;
       if (extra != 0) BesideRan();  // once: a rebuild (Regrid) queries the cells again
     } else {
       // One thread: the same, on this thread.
@@ -1219,6 +1249,22 @@ class GridCore {
     FoldCells();
     fold_ms_ += phase_.Lap();
     touched_.clear();
+  }
+
+  // Cuts touched_ into the runs the pool's threads claim (run r: cell_runs_[r] to
+  // cell_runs_[r + 1]), guided: each a quarter of what is left per thread, from kMaxCellRun down
+  // to kCellRun. A run's first cells find nothing prefetched (see PrefetchAhead), which one
+  // thread's single run pays once: with runs of 32 cells, S1-1M's cells phase took 5.5% longer on
+  // two threads than with 256 (and 1024 gained nothing more); the short runs at the end let the
+  // threads finish together.
+  void CellRuns() {
+    const size_t n = touched_.size(), per = size_t{4} * pool_->threads();
+    cell_runs_.clear();
+    cell_runs_.push_back(0);
+    for (size_t at = 0; at < n;) {
+      at = std::min(n, at + std::clamp((n - at) / per, kCellRun, kMaxCellRun));
+      cell_runs_.push_back(static_cast<uint32_t>(at));
+    }
   }
 
   // Starts loading what applying touched_[k] reads, for the cells after touched_[i] (of a run
@@ -1707,8 +1753,10 @@ class GridCore {
   bool defer_locals_ = false;
   // Per cell index, this query's work: touched (in touched_), the updates, erases and inserts
   // routed to it, and where their runs start in grouped_, grouped_erases_ and grouped_inserts_.
-  // Kept apart from the cells so that routing reads a few bytes.
-  struct CellWork {
+  // Kept apart from the cells so that routing reads a few bytes; 32-byte aligned, so that an
+  // entry never straddles two lines (at 28 bytes, 6 in 16 entries did, and a prefetch of the
+  // entry missed its touched flag).
+  struct alignas(32) CellWork {
     uint32_t updates = 0, erases = 0, inserts = 0;
     uint32_t begin = 0, erase_begin = 0, insert_begin = 0;
     bool touched = false;
@@ -1724,13 +1772,14 @@ class GridCore {
   // Line-aligned: the threads write theirs at once. (A record per cell, added up serially after,
   // took 0.08 ms of S1-1M's frame.)
   struct alignas(64) ThreadOut {
-    size_t swaps = 0, tests = 0;
+    size_t swaps = 0, tests = 0, cells = 0;
     bool global_sort = false;
     std::vector<uint32_t> emptied;
   };
   // Per pool thread and shard of the tracker: witnessed_[thread * shards + shard].
   std::vector<std::vector<Witnessed>> witnessed_;
   std::vector<ThreadOut> thread_out_;  // per pool thread (one without a pool)
+  std::vector<uint32_t> cell_runs_;    // the pool's runs of touched_ (CellRuns)
   std::vector<uint32_t> emptied_;      // FoldCells' scratch: the emptied cells' positions
   std::vector<Large> large_;
   std::vector<uint32_t> free_large_;
@@ -1751,7 +1800,7 @@ class GridCore {
   std::vector<uint32_t> candidates_, found_, scratch_;
   std::vector<double> extents_;
   // Counters of the last query.
-  size_t swaps_ = 0, tests_ = 0, cells_queried_ = 0, pool_routed_ = 0;
+  size_t swaps_ = 0, tests_ = 0, cells_queried_ = 0, pool_routed_ = 0, worker_cells_ = 0;
   bool global_ = false, rebuilt_ = false;
   Stopwatch phase_;  // laps the phases of Apply: route_ms_, cells_ms_, fold_ms_ (Stats)
   double route_ms_ = 0, cells_ms_ = 0, fold_ms_ = 0;
