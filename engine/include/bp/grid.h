@@ -254,8 +254,11 @@ class GridCore {
   // How far ahead of the cell being applied its successors' records and arrays are prefetched.
   static constexpr size_t kRecordAhead = 4, kArraysAhead = 2;
   // Cells whose work entries (CellWork) fill about 256 KiB, half an L2 of this project's Zen 3:
-  // beyond, routing and grouping prefetch them.
-  static constexpr size_t kWorkInCache = 8192;
+  // beyond, routing and grouping prefetch them. In bytes, for any per-cell table (see
+  // WorkFarFromCache): 8192 entries of 28 bytes, CellWork's size when it was measured (since
+  // it is 32, this is kept in bytes, so that S1-1M's 32 768 shard entries of 8 bytes still count
+  // as far).
+  static constexpr size_t kWorkInCache = 8192, kWorkInCacheBytes = size_t{224} << 10;
   using Space = CellSpace<kDim>;
   using CellCoord = typename Space::Coord;
   static constexpr int64_t kLimit = Space::kLimit;
@@ -875,7 +878,7 @@ class GridCore {
           if (ahead.nrefs != 0) Prefetch(&refs_[ahead.refs]);
         }
         if (k + 8 < d.size()) {
-          // The work entries of the cells it may leave, which routing the erases writes.
+          // The work entries of its cells: routing its erases from those it leaves writes them.
           const Object& ahead = objects_[updates[d[k + 8] & ~kKeptRouted].handle];
           for (uint32_t j = 0; j < ahead.nrefs; ++j) {
             PrefetchForWrite(&cell_work_[refs_[ahead.refs + j].cell]);
@@ -1162,10 +1165,10 @@ class GridCore {
     routed_insert_refs_.clear();
   }
 
-  // True iff a per-cell table outgrows what kWorkInCache allows cell_work_.
+  // True iff a per-cell table outgrows kWorkInCacheBytes.
   template <class Table>
   static bool WorkFarFromCache(const Table& table) {
-    return table.size() * sizeof(table[0]) > kWorkInCache * sizeof(CellWork);
+    return table.size() * sizeof(table[0]) > kWorkInCacheBytes;
   }
 
   // Writes each of v's updates at its cell's write cursor in dst (cursor(cell), advanced). When

@@ -607,6 +607,7 @@ class KeyedEngine final : public Broadphase<Core::kDim, typename Core::Coord, Ke
   // runs of kResolveRun items, S1-1M's 100 000 updates were 49 runs; and 5 000 erased keys were
   // three, 2 952 of them on one thread.
   void GuidedRuns(size_t n, size_t unit, size_t most, unsigned threads) {
+    BP_ASSERT(unit > 0 && unit <= most && most % unit == 0);  // whole units, ClaimRun's lists
     const size_t per = size_t{4} * threads;
     runs_.clear();
     runs_.push_back(0);
@@ -633,6 +634,8 @@ class KeyedEngine final : public Broadphase<Core::kDim, typename Core::Coord, Ke
   // Claims items [begin, end) (whole runs of kResolveRun but the last), in one look-ahead loop;
   // an item deferred goes to its run's list.
   void ClaimRun(std::span<const typename Base::Item> items, size_t base, size_t begin, size_t end) {
+    // Whole deferred lists: no other run pushes to this run's.
+    BP_ASSERT(begin % kResolveRun == 0 && (end % kResolveRun == 0 || end == items.size()));
     const auto key_of = [](const typename Base::Item& item) -> const Key& { return item.key; };
     ForEachAhead(items.subspan(begin, end - begin), key_of, nullptr,
                  [&](size_t i, uint32_t tag, uint32_t hint) {
