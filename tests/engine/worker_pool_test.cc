@@ -4,6 +4,7 @@
 // closed stays out of it; and the pool stops cleanly in either state.
 #include "bp/detail/worker_pool.h"
 
+#include <algorithm>
 #include <atomic>
 #include <chrono>
 #include <cstddef>
@@ -91,6 +92,36 @@ TEST(WorkerPool, StopsWhilePollingAndWhileBlocked) {
     std::this_thread::sleep_for(std::chrono::milliseconds(5));
   }                                // destroyed with the workers blocked
   { detail::WorkerPool pool(2); }  // never used
+}
+
+// Guided runs cover [0, n) in order, long first: whole units between least and most but the
+// last, never growing, and within a quarter of what is left per thread.
+TEST(WorkerPool, GuidedRunsCoverInWholeUnitsLongFirst) {
+  for (const size_t n :
+       {size_t{0}, size_t{1}, size_t{31}, size_t{5000}, size_t{32768}, size_t{100000}}) {
+    for (const unsigned threads : {1u, 2u, 4u}) {
+      for (const size_t unit : {size_t{1}, size_t{64}, size_t{2048}}) {
+        const size_t least = unit == 1 ? 32 : unit, most = unit == 1 ? 512 : unit * 8;
+        std::vector<size_t> runs;
+        detail::GuidedRuns(n, threads, unit, least, most, &runs);
+        ASSERT_FALSE(runs.empty());
+        EXPECT_EQ(runs.front(), 0u);
+        EXPECT_EQ(runs.back(), n);
+        for (size_t r = 0; r + 1 < runs.size(); ++r) {
+          const size_t len = runs[r + 1] - runs[r];
+          ASSERT_GT(len, 0u) << n << " " << threads << " " << unit;
+          if (r + 2 == runs.size()) continue;  // the last: the rest
+          EXPECT_EQ(len % unit, 0u);
+          EXPECT_GE(len, least);
+          EXPECT_LE(len, most);
+          EXPECT_LE(len, std::max(least, (n - runs[r]) / (4 * threads)));
+          if (r > 0) {
+            EXPECT_LE(len, runs[r] - runs[r - 1]);
+          }
+        }
+      }
+    }
+  }
 }
 
 }  // namespace

@@ -242,8 +242,9 @@ class GridCore {
 
  private:
   static constexpr uint32_t kNone = ~uint32_t{0};
-  // Touched cells a pool thread claims at a time (see CellRuns): from kMaxCellRun, while many
-  // are left, down to kCellRun at the end.
+  // Touched cells a pool thread claims at a time (guided, see GuidedRuns): from kMaxCellRun,
+  // while many are left, down to kCellRun at the end (with runs of 32 throughout, S1-1M's cells
+  // phase took 5.5% longer on two threads than with 256; 1024 gained nothing more).
   static constexpr size_t kCellRun = 32, kMaxCellRun = 512;
   // A parallel routing's parts of the cells per thread (see RouteOnPool): more than one, so that
   // the thread done first with the serial pass or a part can take another part.
@@ -503,7 +504,7 @@ class GridCore {
         // when the local handle is allocated now.
         const uint32_t* idx = std::as_const(cell_of_).Find(FirstCellKey(inserts[i + 8].box));
         if (idx != nullptr && *idx < cells_.size()) {
-          if (*idx < cell_work_.size()) PrefetchForWrite(&cell_work_[*idx]);
+          PrefetchForWrite(&cell_work_[*idx]);  // cell_work_ grows with cells_
           if (!defer_locals_) Prefetch(cells_[*idx].get());
         }
       }
@@ -1219,7 +1220,7 @@ class GridCore {
       // Index 0 is Apply's beside task when there is one and no parallel routing ran it (see
       // Apply), the cells' follow: the pool's dynamic runs balance it with them.
       const size_t extra = beside_ != nullptr ? 1 : 0;
-      CellRuns();
+      GuidedRuns(touched_.size(), pool_->threads(), 1, kCellRun, kMaxCellRun, &cell_runs_);
       pool_->ParallelFor(cell_runs_.size() - 1 + extra, 1,
                          [this, extra](size_t begin, size_t end, unsigned t) {
                            for (size_t task = begin; task < end; ++task) {
@@ -1252,22 +1253,6 @@ class GridCore {
     FoldCells();
     fold_ms_ += phase_.Lap();
     touched_.clear();
-  }
-
-  // Cuts touched_ into the runs the pool's threads claim (run r: cell_runs_[r] to
-  // cell_runs_[r + 1]), guided: each a quarter of what is left per thread, from kMaxCellRun down
-  // to kCellRun. A run's first cells find nothing prefetched (see PrefetchAhead), which one
-  // thread's single run pays once: with runs of 32 cells, S1-1M's cells phase took 5.5% longer on
-  // two threads than with 256 (and 1024 gained nothing more); the short runs at the end let the
-  // threads finish together.
-  void CellRuns() {
-    const size_t n = touched_.size(), per = size_t{4} * pool_->threads();
-    cell_runs_.clear();
-    cell_runs_.push_back(0);
-    for (size_t at = 0; at < n;) {
-      at = std::min(n, at + std::clamp((n - at) / per, kCellRun, kMaxCellRun));
-      cell_runs_.push_back(static_cast<uint32_t>(at));
-    }
   }
 
   // Starts loading what applying touched_[k] reads, for the cells after touched_[i] (of a run
@@ -1782,7 +1767,7 @@ class GridCore {
   // Per pool thread and shard of the tracker: witnessed_[thread * shards + shard].
   std::vector<std::vector<Witnessed>> witnessed_;
   std::vector<ThreadOut> thread_out_;  // per pool thread (one without a pool)
-  std::vector<uint32_t> cell_runs_;    // the pool's runs of touched_ (CellRuns)
+  std::vector<uint32_t> cell_runs_;    // the pool's runs of touched_ (GuidedRuns)
   std::vector<uint32_t> emptied_;      // FoldCells' scratch: the emptied cells' positions
   std::vector<Large> large_;
   std::vector<uint32_t> free_large_;

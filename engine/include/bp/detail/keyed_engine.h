@@ -594,28 +594,12 @@ class KeyedEngine final : public Broadphase<Core::kDim, typename Core::Coord, Ke
                       const typename Base::RefusedFn& refused) {
     const size_t base = updates_.size();
     const size_t runs = BeginClaims(items.size());
-    GuidedRuns(items.size(), kResolveRun, kResolveRun * 8, pool->threads());
+    // Whole deferred lists per run (see ClaimRun).
+    GuidedRuns(items.size(), pool->threads(), kResolveRun, kResolveRun, kResolveRun * 8, &runs_);
     pool->ParallelFor(runs_.size() - 1, 1, [&](size_t begin, size_t end, unsigned) {
       for (size_t r = begin; r < end; ++r) ClaimRun(items, base, runs_[r], runs_[r + 1]);
     });
     return EndClaims(items, base, runs, refused);
-  }
-
-  // Cuts n items into the runs the pool's threads claim (run r: runs_[r] to runs_[r + 1]),
-  // guided: each a quarter of what is left per thread, in whole units of `unit` items, at most
-  // `most`, down to one unit at the end. A run's look-ahead (ForEachAhead) starts cold: with
-  // runs of kResolveRun items, S1-1M's 100 000 updates were 49 runs; and 5 000 erased keys were
-  // three, 2 952 of them on one thread.
-  void GuidedRuns(size_t n, size_t unit, size_t most, unsigned threads) {
-    BP_ASSERT(unit > 0 && unit <= most && most % unit == 0);  // whole units, ClaimRun's lists
-    const size_t per = size_t{4} * threads;
-    runs_.clear();
-    runs_.push_back(0);
-    for (size_t at = 0; at < n;) {
-      const size_t len = std::clamp((n - at) / per / unit * unit, unit, most);
-      at = std::min(n, at + len);
-      runs_.push_back(at);
-    }
   }
 
   // UpdateManyOn's parts: the entries and deferred lists for n items (returns the runs), the
@@ -760,7 +744,7 @@ class KeyedEngine final : public Broadphase<Core::kDim, typename Core::Coord, Ke
     WorkerPool* pool = LookupPool(n);
     if (pool == nullptr) return ForEachAhead(items, key_of, refused, apply);
     resolved_.resize(n);
-    GuidedRuns(n, kResolveUnit, kResolveRun * 8, pool->threads());
+    GuidedRuns(n, pool->threads(), kResolveUnit, kResolveUnit, kResolveRun * 8, &runs_);
     pool->ParallelFor(runs_.size() - 1, 1, [&](size_t first, size_t last, unsigned) {
       for (size_t r = first; r < last; ++r) {
         const size_t begin = runs_[r], end = runs_[r + 1];
@@ -984,9 +968,12 @@ class KeyedEngine final : public Broadphase<Core::kDim, typename Core::Coord, Ke
   // An erase's commit costs about as much as this many look-ups or drained pairs (a probe run
   // scanned to its end and shifted back): what the events phase weighs against PoolFor.
   static constexpr size_t kEraseWeight = 4;
-  static constexpr size_t kResolveRun = 2048;    // items per deferred list of UpdateManyOn
-  static constexpr size_t kResolveUnit = 64;     // ForEachResolved's runs: whole multiples of it
-  std::vector<size_t> runs_;                     // the pool's runs of a batch (GuidedRuns)
+  static constexpr size_t kResolveRun = 2048;  // items per deferred list of UpdateManyOn
+  static constexpr size_t kResolveUnit = 64;   // ForEachResolved's runs: whole multiples of it
+  // The pool's runs of a batch (GuidedRuns): each look-ahead loop (ForEachAhead) starts cold,
+  // and runs of kResolveRun made S1-1M's 100 000 updates 49 runs, its 5 000 erased keys three
+  // (2 952 keys on one thread).
+  std::vector<size_t> runs_;
   std::vector<Resolved> resolved_;               // ForEachResolved: each item's key tag and handle
   std::vector<std::vector<uint32_t>> deferred_;  // UpdateManyOn: each run's deferred items
   // UpdateManyOn: the deferred items skipped for a later item's update, and its entry.
