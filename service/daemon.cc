@@ -474,10 +474,17 @@ void Daemon::ProcessPayload(std::span<const uint8_t> payload, const dds_sample_i
   };
   Reject refused;
   if (!AdmitBatch(payload, config_.limits, &batch_, &refused)) {
-    // The producer is known once the payload parsed (0 for oversize or malformed payloads).
-    // A refused batch of the writer holding the id is not a gap in its sequence.
-    // A restate batch refused breaks its run (it would erase the objects the batch named).
+    // A payload too large to parse, or malformed, names no producer: it is reported as the one
+    // its writer holds (0 if the writer holds none, or several as a replay does). Its batch_seq
+    // is unknown, so the writer's next batch shows the gap and the producer is asked to restate.
     const uint32_t producer = batch_.producer();
+    if (producer == 0 && (refused.reason == wire::OVERSIZE || refused.reason == wire::MALFORMED)) {
+      batch_reject(WriterProducer(info.publication_handle), refused.reason,
+                   std::move(refused.message));
+      return;
+    }
+    // A parsed batch refused, of the writer holding the id, is not a gap in its sequence.
+    // A restate batch refused breaks its run (it would erase the objects the batch named).
     const auto claim = claims_.find(producer);
     bool broke = false;
     if (claim != claims_.end() && claim->second.writer == info.publication_handle) {
@@ -519,6 +526,16 @@ void Daemon::ProcessPayload(std::span<const uint8_t> payload, const dds_sample_i
   if (config_.frames.boundary == FrameBoundary::kEndOfFrame && batch_.end_of_frame()) {
     RunFrame(producer, batch_.frame(), batch_.sent_time_ns());
   }
+}
+
+uint32_t Daemon::WriterProducer(dds_instance_handle_t writer) const {
+  uint32_t found = 0;
+  for (const auto& [producer, claim] : claims_) {
+    if (claim.writer != writer) continue;
+    if (found != 0) return 0;
+    found = producer;
+  }
+  return found;
 }
 
 void Daemon::ReportRejection(uint32_t producer, const wire::UpdateBatch* batch, Reject&& r) {

@@ -75,6 +75,8 @@ class Daemon {
   Daemon() = default;
   void ProcessPayload(std::span<const uint8_t> payload, const dds_sample_info_t& info);
   bool ClaimProducer(uint32_t producer, dds_instance_handle_t writer);
+  // The producer id the writer holds, or 0 if it holds none or several.
+  uint32_t WriterProducer(dds_instance_handle_t writer) const;
   // Takes the writers' liveliness changes; erases the objects of producers whose writer has been
   // gone for producers.lease_s. Returns when the next one is due (time_point::max() if none).
   std::chrono::steady_clock::time_point CheckProducers();

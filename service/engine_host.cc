@@ -1,6 +1,7 @@
 #include "engine_host.h"
 
 #include <algorithm>
+#include <charconv>
 #include <cmath>
 #include <limits>
 #include <type_traits>
@@ -18,6 +19,14 @@ std::string ItemName(wire::Op op, uint32_t index, uint64_t id) {
   return std::string(what) + "[" + std::to_string(index) + "] id " + std::to_string(id);
 }
 
+// A coordinate in a message, in the shortest form that reads back as the same value ("1e+300",
+// "0.1"), where std::to_string would print every digit of a large value.
+std::string ShortNumber(double v) {
+  char text[32];
+  const auto result = std::to_chars(text, text + sizeof(text), v);
+  return std::string(text, result.ptr);
+}
+
 // Converts one wire coordinate to the engine's type. Floating engines round outward (lo down,
 // hi up) so that a narrowing conversion can only grow a box, never lose a pair.
 template <class T, class S>
@@ -31,7 +40,7 @@ bool ConvertCoordinate(S v, bool is_lo, T* out, wire::RejectReason* reason, std:
     if constexpr (sizeof(S) > sizeof(T)) {
       if (std::fabs(v) > static_cast<S>(std::numeric_limits<T>::max())) {
         *reason = wire::NOT_FINITE;
-        *why = std::to_string(v) + " is out of the engine's float range";
+        *why = ShortNumber(static_cast<double>(v)) + ", out of the engine's float range";
         return false;
       }
       T t = static_cast<T>(v);
@@ -47,7 +56,8 @@ bool ConvertCoordinate(S v, bool is_lo, T* out, wire::RejectReason* reason, std:
   } else {
     if (std::trunc(v) != v) {
       *reason = wire::NOT_INTEGRAL;
-      *why = std::to_string(v) + " is not an integer (the engine's coordinates are integers)";
+      *why = ShortNumber(static_cast<double>(v)) +
+             ", not an integer (the engine's coordinates are integers)";
       return false;
     }
     // Compared in double, where every int32 bound is exact: as a float, INT32_MAX rounds up to
@@ -56,7 +66,7 @@ bool ConvertCoordinate(S v, bool is_lo, T* out, wire::RejectReason* reason, std:
     if (d < static_cast<double>(std::numeric_limits<T>::min()) ||
         d > static_cast<double>(std::numeric_limits<T>::max())) {
       *reason = wire::NOT_FINITE;
-      *why = std::to_string(v) + " is out of the engine's integer range";
+      *why = ShortNumber(static_cast<double>(v)) + ", out of the engine's integer range";
       return false;
     }
     *out = static_cast<T>(v);
@@ -222,8 +232,9 @@ class TypedHost final : public EngineHost {
       }
       if (lo[a] > hi[a]) {
         *reason = wire::INVERTED;
-        *why = "lo > hi on axis " + std::to_string(a) + " (" + std::to_string(lo[a]) + " > " +
-               std::to_string(hi[a]) + ")";
+        *why = "lo > hi on axis " + std::to_string(a) + " (" +
+               ShortNumber(static_cast<double>(lo[a])) + " > " +
+               ShortNumber(static_cast<double>(hi[a])) + ")";
         return false;
       }
     }
@@ -341,10 +352,9 @@ Status Make(const EngineConfig& config, uint64_t max_objects, std::unique_ptr<En
   auto grid = [&](auto& options) {
     options.cell_size = cell_size;
     options.threads = threads;
-    // Keys are looked up on this thread only: with the look-ups spread over the engine's
-    // threads, S1-200k's update→event p99 was higher in 4 of 5 alternating end-to-end runs
-    // (median 9.1 ms against 7.2, keep-awake on; 2026-11-27, session 39), though the ingest's
-    // median fell; the other parallel phases stay.
+    // Keys are looked up on this thread only: spread over the engine's threads, the look-ups
+    // cut the ingest's median but raised the update→event tail end to end (docs/TUNING.md,
+    // daemon); the other parallel phases stay.
     options.parallel_lookups = false;
   };
   grid(spec.grid_segmented_sap);

@@ -37,8 +37,10 @@ Status Subscriber<Msg>::Poll(std::chrono::milliseconds timeout, std::vector<Msg>
     Status st = reader_.Take(
         256,
         [&](const dds::Received& r) {
+          // A number at or below the last one starts a new run of the sequence (a restarted
+          // daemon numbers from 1 again): gaps are counted within it from there.
           if (last_seq_ != 0 && r.seq > last_seq_ + 1) gaps_ += r.seq - last_seq_ - 1;
-          if (r.seq > last_seq_) last_seq_ = r.seq;
+          last_seq_ = r.seq;
           Msg msg;
           if (!msg.ParseFromArray(r.payload.data(), static_cast<int>(r.payload.size()))) {
             ++malformed_;

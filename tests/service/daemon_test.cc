@@ -349,6 +349,12 @@ TEST(Daemon, BatchLevelFaultsAreRejectedAndTheDaemonKeepsServing) {
   expect_rejection(wire::BAD_ATTRIBUTE, "must be empty or have one value per id");
   ++expected;  // both items of that insert array are refused
   ASSERT_TRUE(client.status->WaitFor(expected));
+  // The writer now holds producer 5: a payload that does not parse is reported as producer 5's
+  // (the first one, sent before the writer held an id, as producer 0).
+  EXPECT_EQ(client.status->rejections().front().producer(), 0u);
+  BP_ASSERT_OK(pub->PublishRaw(std::string("\xff\xff\xff\xff garbage", 12)));
+  expect_rejection(wire::MALFORMED, "is not a valid UpdateBatch");
+  EXPECT_EQ(client.status->rejections().back().producer(), 5u);
   // After all that, a valid frame still works.
   wire::UpdateBatch good = InsertBatch({{1, Cube(0)}, {2, Cube(0.25f)}});
   good.set_frame(99);
@@ -660,16 +666,19 @@ TEST(Daemon, DoublesToAFloatEngineRoundOutward) {
   BP_ASSERT_OK(pub->Publish(&batch));
   ExpectFrame(*client.events, 1, {}, {});
   client::AddBox<3>(second.mutable_inserts(), 2, Box<3, double>{{0.1, 0, 0}, {1, 1, 1}});
-  client::AddBox<3>(second.mutable_inserts(), 3, Box<3, double>{{0, 0, 0}, {1e39, 1, 1}});
+  client::AddBox<3>(second.mutable_inserts(), 3, Box<3, double>{{0, 0, 0}, {1e300, 1, 1}});
   BP_ASSERT_OK(pub->Publish(&second));
   ExpectFrame(*client.events, 2, {}, {{service::GlobalKey(1, 1), service::GlobalKey(1, 2)}});
   ASSERT_TRUE(client.status->WaitFor(1));
   EXPECT_EQ(client.status->rejections()[0].reason(), wire::NOT_FINITE);
-  EXPECT_NE(client.status->rejections()[0].message().find("out of the engine's float range"),
-            std::string::npos);
+  // The value in its short form, not the 300 digits of printf's %f.
+  EXPECT_NE(client.status->rejections()[0].message().find(
+                "hi on axis 0 is 1e+300, out of the engine's float range"),
+            std::string::npos)
+      << client.status->rejections()[0].message();
 }
 
-// Issue 8: a subscriber that joins late, one that falls behind (KEEP_LAST 12 overwrites what it
+// A subscriber that joins late, one that falls behind (KEEP_LAST 12 overwrites what it
 // does not read: a gap), and the first one across a daemon restart (a new epoch), each rebuild
 // the exact overlap set from a snapshot and keep it exact frame by frame. Snapshots are split into
 // parts.
@@ -841,7 +850,7 @@ TEST(Daemon, ClientLibraryRoundTripWithACallback) {
   sub->StopListening();
   sub->StopListening();  // idempotent
 }
-// Issue 8: a producer that goes away (here its writer is deleted; a killed process loses its
+// A producer that goes away (here its writer is deleted; a killed process loses its
 // liveliness, see daemon_process_test.cc) has its objects erased after producers.lease_s, with
 // one frame of uncollides for every pair they were in, its own pairs and the others'.
 TEST(Daemon, AProducerThatGoesAwayHasItsObjectsErasedAfterTheLease) {
@@ -912,7 +921,7 @@ TEST(Daemon, AProducerThatGoesAwayHasItsObjectsErasedAfterTheLease) {
   EXPECT_EQ(named, (std::set<uint32_t>{1, 5}));
 }
 
-// Issue 8: with producers.lease_s = 0 the objects of a producer that left stay.
+// With producers.lease_s = 0 the objects of a producer that left stay.
 TEST(Daemon, WithoutALeaseTheObjectsOfAProducerThatLeftStay) {
   service::Config config = TestConfig(kDomain);
   config.producers.lease_s = 0;
@@ -937,7 +946,7 @@ TEST(Daemon, WithoutALeaseTheObjectsOfAProducerThatLeftStay) {
   EXPECT_EQ(daemon.daemon().producers_expired(), 0u) << "a take-over is not a lease expiry";
 }
 
-// Issue 8: the daemon restarts empty; a producer that keeps its objects (restate_on_restart)
+// The daemon restarts empty; a producer that keeps its objects (restate_on_restart)
 // sends them again when it sees the new epoch, and a subscriber's view, resynced from a snapshot,
 // equals the oracle's set. (daemon_process_test.cc kills the daemon with SIGKILL instead.)
 TEST(Daemon, ARestartedDaemonGetsTheObjectsBackFromARestatingProducer) {
@@ -1004,7 +1013,7 @@ TEST(Daemon, ARestartedDaemonGetsTheObjectsBackFromARestatingProducer) {
   }
 }
 
-// Issue 8: a subscriber that keeps asking gets at most one snapshot per
+// A subscriber that keeps asking gets at most one snapshot per
 // limits.snapshot_interval_ms, and a request in between is served late, not dropped.
 TEST(Daemon, SnapshotRequestsAreRateLimited) {
   service::Config config = TestConfig(kDomain);
@@ -1049,7 +1058,7 @@ TEST(Daemon, SnapshotRequestsAreRateLimited) {
   EXPECT_EQ(view.SortedPairs(), (PairList{{service::GlobalKey(1, 10), service::GlobalKey(1, 11)}}));
 }
 
-// Issue 8: a restating producer that finds its own id among a report's expired_producers (it
+// A restating producer that finds its own id among a report's expired_producers (it
 // hung longer than the daemon's lease) restates its objects to the same daemon; the restate
 // closes a frame, and replaces objects the daemon still holds without a rejection.
 TEST(Daemon, AProducerTheDaemonExpiredWhileItHungRestates) {
@@ -1090,7 +1099,7 @@ TEST(Daemon, AProducerTheDaemonExpiredWhileItHungRestates) {
   for (const auto& r : client.status->rejections()) ADD_FAILURE() << r.message();
 }
 
-// Issue 8: batches lost in DDS (a producer stalled longer than Cyclone's participant lease was
+// Batches lost in DDS (a producer stalled longer than Cyclone's participant lease was
 // dropped and discovered again) show as a batch_seq gap. The daemon asks the producer to restate
 // (DaemonStatus.resync), and a restate states the producer's whole set: an object it no longer
 // has is erased, a box that diverged is replaced.

@@ -49,7 +49,8 @@ class Subscriber {
   ~Subscriber() { StopListening(); }
   /// Payloads that did not parse.
   uint64_t malformed() const { return malformed_.load(); }
-  /// Envelopes missing between consecutive received sequence numbers.
+  /// Envelopes missing between consecutive received sequence numbers. A number at or below the
+  /// last one received (a restarted daemon's) starts the count again from it.
   uint64_t gaps() const { return gaps_.load(); }
 
  private:
