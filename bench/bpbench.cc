@@ -1,4 +1,4 @@
-// bpbench: engine benchmarks on the scenes of shared/WORKLOADS.md. One JSON line per
+// bpbench: engine benchmarks on the scenes of docs/WORKLOADS.md. One JSON line per
 // (scenario, engine, configuration) on stdout: median/mean/p90 frame milliseconds over all
 // repeats, build time, pairs, events, set hash, chain, whether they match the golden table, peak
 // RSS. A progress line goes to stderr when it is a terminal.

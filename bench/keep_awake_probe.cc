@@ -4,12 +4,9 @@
 // say) works 0.3 ms in every 1 ms; the frame thread reads the clock in a tight loop and counts
 // the gaps: the time it was runnable or preempted but off its CPU. Rounds alternate the keeper
 // off and on (touched every 10 ms, as batches would). One JSON line per run.
-//
-// What it showed (2026-11-27, 2-vCPU Firecracker guest, Linux 6.18, HZ=250; 8 s runs,
-// bench/results/2026-11-27-s42-keep-awake-probe.jsonl): spinners that never yielded (commit
-// a1420f1) left the frame threads 723-773 gaps over 1 ms (up to 1.4 ms: the spinner was picked
-// before the runnable frame thread until the other thread's next wake-up); the yielding spinners
-// 2-6 (up to 1.8 ms); none at all 0-2.
+// A keeper whose spinners do not yield shows as hundreds of gaps over 1 ms per run where no
+// keeper shows a few: under EEVDF a thread that has just run past its share is not eligible, so
+// the spinner's low weight alone does not keep it behind a runnable frame thread.
 #include <algorithm>
 #include <atomic>
 #include <chrono>

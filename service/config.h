@@ -119,7 +119,8 @@ struct LoggingConfig {
   /// "" = stderr only; else also append to this file (resolved like dds.cyclone_config).
   std::string file;
   /// "" = none; else a CSV file (resolved the same way, replaced at start) with one line per
-  /// frame: its stages' times, the engine's phases and its counts (see the README).
+  /// frame: its stages' times, the engine's phases and its counts (docs/OPERATIONS.md lists
+  /// the columns).
   std::string frame_log;
 
   /// Member-wise equality.

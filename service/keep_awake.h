@@ -3,30 +3,22 @@
 // while frames flow (frames.keep_cpus_awake_ms).
 //
 // Why: on a virtual machine an idle CPU halts, and waking it (a packet for the DDS receive
-// thread, the engine's worker for the query) exits to the hypervisor. On this project's
-// Firecracker guests (haltpoll cpuidle with guest_halt_poll_ns=0) the daemon's two-thread
-// S1-200k query had a p50 of 3.1 ms and a p90 of 5.8-7.0; with the CPUs kept awake its p90 was
-// 3.0-3.2, and scripts/e2e-bench's update->event p99 8.4-9.6 ms against 10.0-12.2 without (8
-// alternating pairs, 2026-11-27).
+// thread, the engine's worker for the query) exits to the hypervisor, and the frame waits for
+// it; on such guests the query's tail is then several times its median. What it buys is
+// measured end to end in docs/RESULTS.md.
 //
 // A SCHED_IDLE thread has the lowest weight the scheduler knows (3, against 1024 for a normal
 // thread), so within the guest it takes almost no time from the daemon or any other process
-// (the kernel preempts it at once for a woken thread; a compute loop pinned to each CPU ran
-// 0.62-0.69 s beside two spinning CPUs against 0.61-0.65 s without, 3 alternating rounds); it
-// keeps the CPU from halting. Touch takes no lock, so a spinner preempted anywhere never holds
-// the daemon up.
+// (the kernel preempts it at once for a woken thread); it keeps the CPU from halting. Touch
+// takes no lock, so a spinner preempted anywhere never holds the daemon up.
 //
 // Each spin round calls sched_yield. Weight alone does not keep a spinner behind the daemon: the
 // EEVDF scheduler (Linux 6.6 on) picks among the eligible threads of a CPU, and a runnable thread
 // that has just run ahead of its share (a daemon thread preempted by another process's thread) may
-// be ineligible, so the spinner is picked and keeps the CPU until the next tick (4 ms at
-// HZ=250). On this project's VM (Linux 6.18) a scheduler trace of scripts/e2e-bench showed
-// exactly that: the daemon's main thread, preempted while publishing, runnable for 3.6-5.1 ms
-// while the spinner of its CPU ran; its worker likewise. Without the yield 5-15 frames of 1 169
-// took over 2 ms to publish (0.1 ms at the median), with it 0-4; update->event p99 5.5-9.4 ms
-// (median 6.75, 7 runs) against 7.0-9.1 (median 8.3), alternating in one series
-// (bench/results/2026-11-27-s42-e2e-keep-awake.jsonl). bench/keep_awake_probe.cc (bpawake)
-// measures it apart from the daemon: a thread that shares its CPU with another normal thread.
+// be ineligible, so the spinner would be picked and keep the CPU until the next tick. The yield
+// hands the CPU back at once whenever another thread is runnable. bench/keep_awake_probe.cc
+// (bpawake) measures this apart from the daemon: a thread that shares its CPU with another
+// normal thread, beside spinners and without.
 // Outside the guest it is not free: every CPU reads busy while batches keep arriving, plus the
 // window (power, and the host's cycles), and where two virtual CPUs share a physical core the
 // spin takes issue slots from the other. After the window the threads block until the next

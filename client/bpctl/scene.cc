@@ -133,8 +133,7 @@ int Scene(const Common& common, const SceneOptions& options) {
     // The next frame is generated after the wait, just before it is published, as a simulator
     // steps at its tick. Generated right after publishing, it took a CPU from the daemon while
     // the daemon worked on the frame just sent, where the daemon, the scene and the watcher share
-    // two CPUs (scripts/e2e-bench S1-200k: p99 latency 13.4-14.9 ms against 14.7-16.0 before, 3
-    // alternating pairs).
+    // few CPUs, and lengthened the update→event tail.
     next += period;
     if (next > std::chrono::steady_clock::now()) {
       std::this_thread::sleep_until(next);

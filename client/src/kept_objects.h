@@ -4,8 +4,8 @@
 // so a look-up reads one line of the index and then the record.
 //
 // Why not std::unordered_map: a scene that moves 20k of its 200k objects per frame looked each
-// one up in a node-based map, two dependent cache misses per update: `perf` on the end-to-end
-// S1-200k run put 28% of the machine's two cores in the scene's Keep, next to the daemon. A frame's
+// one up in a node-based map, two dependent cache misses per update, and took a large share of
+// a core beside the daemon. A frame's
 // updates go through ForEachFound, which prefetches the index lines and then the records a few
 // updates ahead, so the misses of successive updates overlap.
 //

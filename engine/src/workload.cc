@@ -1,4 +1,4 @@
-// bp::workload implementation: see bp/workload.h and shared/WORKLOADS.md.
+// bp::workload implementation: see bp/workload.h and docs/WORKLOADS.md.
 // Compiled with -ffp-contract=off: every floating-point operation below is rounded separately,
 // exactly as the specification's text reads, so the scene is bit-exact.
 #include "bp/workload.h"

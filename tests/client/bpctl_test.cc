@@ -177,7 +177,7 @@ TEST(Bpctl, CheckCountsRejectionsAndRefusesBadInput) {
   std::filesystem::remove(file);
 }
 
-// Issue 8: watch --exact joins a running scene late, syncs from a snapshot and checks its set
+// bpctl watch --exact joins a running scene late, syncs from a snapshot and checks its set
 // against the daemon's count after every frame.
 TEST(Bpctl, WatchExactJoinsLateAndAgreesWithTheDaemon) {
   service::Config config = TestConfig(kDomain);

@@ -1,4 +1,4 @@
-// The extreme and stiff numeric suite (issue 8): every engine, in 2-D and 3-D with float, double
+// The extreme and stiff numeric suite: every engine, in 2-D and 3-D with float, double
 // and int32 coordinates, against the model oracle on scenes built to break arithmetic and
 // bookkeeping rather than to look like a simulation:
 //   huge          coordinates near ±1e30 (float), ±1e300 (double), ±2^31 (int32), and the type's

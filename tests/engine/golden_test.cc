@@ -1,4 +1,4 @@
-// The golden values of shared/WORKLOADS.md reproduced through the engines: pairs at frame 0 and
+// The golden values of docs/WORKLOADS.md reproduced through the engines: pairs at frame 0 and
 // at the end, collide/uncollide totals, final set hash and chain, for float, double and integer
 // coordinates. Rows above 10k objects run only with BP_LONG_TESTS=1 (bpbench covers them). The
 // engines come from bp::NewEngine (compiled once, in bp_engines), as the daemon's and bpbench's do.

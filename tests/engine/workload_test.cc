@@ -1,4 +1,4 @@
-// Tests of bp::workload: the generator against the golden values of shared/WORKLOADS.md,
+// Tests of bp::workload: the generator against the golden values of docs/WORKLOADS.md,
 // checked by an independent, simple exact oracle (sort-and-sweep over all live boxes).
 #include "bp/workload.h"
 
@@ -196,7 +196,7 @@ TEST_P(WorkloadGoldenTest, MatchesGoldenValues) {
   EXPECT_EQ(Hex(chain.value()), g.chain);
 }
 
-// The golden table of shared/WORKLOADS.md (seed 12345).
+// The golden table of docs/WORKLOADS.md (seed 12345).
 INSTANTIATE_TEST_SUITE_P(
     Golden, WorkloadGoldenTest,
     ::testing::Values(Golden{"S2a", 3, 3000, 150, 1, 100, 618, 616, 461, 463, "4c5481efcc6b8142",

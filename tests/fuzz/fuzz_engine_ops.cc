@@ -11,7 +11,7 @@
 // On a mismatch the target prints what differs and aborts, so libFuzzer saves the input.
 //
 //   build: cmake --preset ci-fuzz && cmake --build --preset ci-fuzz   (clang)
-//   run:   scripts/fuzz engine_ops [seconds]
+//   run:   scripts/fuzz run engine_ops [RUNS]   (RUNS inputs; scripts/fuzz smoke: the CI stage)
 #include <cstdint>
 #include <cstdio>
 #include <cstdlib>

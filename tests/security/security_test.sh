@@ -1,5 +1,5 @@
 #!/usr/bin/env bash
-# DDS Security end to end (issue 8): certificates and signed documents from scripts/make-security,
+# DDS Security end to end: certificates and signed documents from scripts/make-security,
 # broadphased and bpctl as separate processes on loopback, domain $1.
 #   - an authorised producer's scene reaches the daemon and an authorised watcher gets its events;
 #   - an intruder with a complete setup of its own (its own CAs and a permissions document that

@@ -235,7 +235,7 @@ TEST(DaemonProcess, CheckAndPrintConfig) {
   EXPECT_TRUE(s.ok()) << s.ToString() << "\n" << printed;
 }
 
-// Issue 8: kill -9 the daemon and start another. The producer keeps its objects
+// kill -9 of the daemon, then another one starts. The producer keeps its objects
 // (restate_on_restart) and restates them to the new daemon when it sees its epoch; a subscriber
 // sees the epoch change, resyncs from a snapshot, and ends with exactly the oracle's set.
 TEST(DaemonProcess, AKilledDaemonIsReplacedAndRestatingProducersRestoreTheExactSet) {
@@ -319,7 +319,7 @@ TEST(DaemonProcess, AKilledDaemonIsReplacedAndRestatingProducersRestoreTheExactS
   EXPECT_NE(log.find("snapshot of frame"), std::string::npos) << log;
 }
 
-// Issue 8: kill -9 a producer (bpctl scene). Its writer's liveliness lease (1 s) runs out, then
+// kill -9 of a producer (bpctl scene). Its writer's liveliness lease (1 s) runs out, then
 // the daemon's producers.lease_s (2 s); its objects are erased and every pair they were in is
 // uncollided, exactly once.
 TEST(DaemonProcess, AKilledProducersObjectsAreErasedAfterTheLease) {
@@ -393,7 +393,7 @@ TEST(DaemonProcess, AKilledProducersObjectsAreErasedAfterTheLease) {
   EXPECT_NE(log.find("producer 8: its writer has not been alive"), std::string::npos) << log;
 }
 
-// Issue 8: a producer (bpctl scene) stopped with SIGSTOP for 4 s: longer than Cyclone's
+// A producer (bpctl scene) stopped with SIGSTOP for 4 s: longer than Cyclone's
 // participant lease (2 s), shorter than producers.lease_s (10 s). DDS drops it and discovers it
 // again, and batches around the stall may be lost; the daemon asks it to restate. It keeps its
 // id, nothing expires, and when the scene ends the daemon holds exactly the scene's last frame.

@@ -57,7 +57,7 @@ struct BatchSapOptions {
   /// A query with no insert or erase pending re-sorts globally (one pass per axis) when the
   /// moved objects exceed this fraction of the live ones, and per moved object otherwise. Any
   /// pending insert or erase makes the query one global pass (paper, section 4). Measured with
-  /// `bpbench --threshold-sweep --engine batch_sap` (README).
+  /// `bpbench --threshold-sweep --engine batch_sap` (docs/TUNING.md).
   double global_sort_fraction = 0.07;
 };
 

@@ -247,8 +247,8 @@ inline constexpr bool kHasAvx2Rows = false;
 /// The portable block test, in GCC/Clang vector extensions (16-byte vectors, which every target
 /// of these compilers lowers to its own SIMD, or to scalars): bit i of Block's result is set iff
 /// slot i's box overlaps [lo, hi] on every axis (live bits not applied). GCC 12 does not
-/// vectorise the plain loop (one scalar compare per slot and bound, about 10 cycles per slot
-/// test on a Zen 3); in this form it takes about half as long. For float, double and int32
+/// vectorise the plain loop (one scalar compare per slot and bound); in this form it takes
+/// about half as long. For float, double and int32
 /// (the types the differential suite runs); other types take the plain loop.
 template <class T>
 inline constexpr bool kHasVectorRows =

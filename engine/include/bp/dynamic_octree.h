@@ -66,10 +66,9 @@ namespace bp {
 /// Tuning of DynamicOctree.
 struct DynamicOctreeOptions {
   /// A leaf splits when its list holds more objects than this; a split node whose subtree holds
-  /// at most half as many is collapsed into a leaf. Measured with bpbench --octree-capacity
-  /// (bench/results/2026-11-22-octree.jsonl): 4 to 64 are within 5% on S2a, S2c, S1-10k and
-  /// S4, 32 is ~10% faster than 16 on S1-100k. The capacity matters little: most box tests are
-  /// against objects that straddle split planes high in the tree, which no capacity changes.
+  /// at most half as many is collapsed into a leaf (bpbench --octree-capacity measures it). The
+  /// capacity matters little: most box tests are against objects that straddle split planes
+  /// high in the tree, which no capacity changes; 32 is the best of 4 to 64 on S1-100k.
   uint32_t max_objects_per_node = 32;
   /// Nodes this many halvings below the first root's size do not split (growth of the root
   /// does not count: depth is measured against the first root, whatever the root is now).

@@ -86,7 +86,8 @@
 namespace bp {
 
 /// The objects per cell the automatic size aims at, by cell type: about 300 for SAP cells (the
-/// paper's finding on uniform scenes), 32 for dense cells (measured on S1-200k, S3 and S4: README).
+/// paper's finding on uniform scenes), 32 for dense cells (measured on S1-200k, S3 and S4:
+/// docs/TUNING.md).
 template <class CellOptions>
 inline constexpr double kDefaultObjectsPerCell = 300;
 template <>
@@ -110,8 +111,8 @@ struct GridOptions {
   /// (below, waking the workers costs more than it saves); 0 never does either.
   size_t parallel_routing_from = 4096;
   /// With threads > 1, a large UpdateMany or EraseMany (as many items as above) looks its keys
-  /// up on every thread first (the front end's calls 0.84x on S1-200k, S3 and S1-1M). The
-  /// daemon turns it off: its update→event p99 measured lower without (see README).
+  /// up on every thread first (faster calls). The daemon turns it off: its update→event tail
+  /// is lower without (docs/TUNING.md).
   bool parallel_lookups = true;
   /// Options of every cell.
   CellOptions cell{};
@@ -243,22 +244,20 @@ class GridCore {
  private:
   static constexpr uint32_t kNone = ~uint32_t{0};
   // Touched cells a pool thread claims at a time (guided, see GuidedRuns): from kMaxCellRun,
-  // while many are left, down to kCellRun at the end (with runs of 32 throughout, S1-1M's cells
-  // phase took 5.5% longer on two threads than with 256; 1024 gained nothing more).
+  // while many are left, down to kCellRun at the end: each run's first cells find nothing
+  // prefetched, so long runs save cold starts, and short ones at the end balance the threads.
   static constexpr size_t kCellRun = 32, kMaxCellRun = 512;
   // A parallel routing's parts of the cells per thread (see RouteOnPool): more than one, so that
   // the thread done first with the serial pass or a part can take another part.
   static constexpr size_t kPartsPerThread = 2;
-  // What an erase costs, in routed updates (RouteOnPool's first run): S1-1M, two threads,
-  // erased 50 ns each against 23 ns per routed update.
+  // What an erase costs, in routed updates (RouteOnPool's first run), as measured on S1-1M.
   static constexpr size_t kEraseWeight = 2;
   // How far ahead of the cell being applied its successors' records and arrays are prefetched.
   static constexpr size_t kRecordAhead = 4, kArraysAhead = 2;
-  // Cells whose work entries (CellWork) fill about 256 KiB, half an L2 of this project's Zen 3:
-  // beyond, routing and grouping prefetch them. In bytes, for any per-cell table (see
-  // WorkFarFromCache): 8192 entries of 28 bytes, CellWork's size when it was measured (since
-  // it is 32, this is kept in bytes, so that S1-1M's 32 768 shard entries of 8 bytes still count
-  // as far).
+  // Per-cell tables larger than about half a typical L2 are far from the cache: beyond
+  // kWorkInCache work entries (CellWork), routing prefetches them, and beyond kWorkInCacheBytes
+  // grouping prefetches any per-cell table (see WorkFarFromCache; in bytes, so that a table of
+  // small entries, as the shards' 8-byte ones, counts by its size).
   static constexpr size_t kWorkInCache = 8192, kWorkInCacheBytes = size_t{224} << 10;
   using Space = CellSpace<kDim>;
   using CellCoord = typename Space::Coord;
@@ -277,9 +276,8 @@ class GridCore {
   // objects in the cells they keep, and the cells it touched, each by part of the cells
   // (PartOf), their counts by cell index (zero outside touched), and the updates left for the
   // serial pass (indices into the query's updates, kKeptRouted marking migrations).
-  // Two lines apart: the threads push to their shards' vectors at once, and with the shards'
-  // headers sharing a line, 11% of the routing's samples waited on it (perf, S1-1M, two
-  // threads).
+  // Two lines apart: the threads push to their shards' vectors at once, and shards' headers
+  // sharing a line would bounce it between the threads.
   struct alignas(128) Shard {
     std::vector<HugeVector<Routed>> routed;      // by part
     std::vector<std::vector<uint32_t>> touched;  // by part
@@ -350,7 +348,7 @@ class GridCore {
   // truncation is floor) and a truncation: that rounds a quotient just below an integer up to
   // it (within 2^-32 at 3-D), which keeps the map monotone. No std::floor there: baseline x86-64
   // has no floor instruction, and GCC's emulation (sign, NaN and range fix-ups) in an update's
-  // six calls held 74% of UpdateObject's samples (perf, S1-10k). One axis (kLimit 2^62) keeps
+  // six calls dominated UpdateObject. One axis (kLimit 2^62) keeps
   // std::floor: the sum would drop the quotient's low bits and overflow int64 at the top.
   int64_t CellOf(Coord x, size_t axis) const {
     constexpr double kLow = -static_cast<double>(kLimit), kHigh = static_cast<double>(kLimit - 1);
@@ -543,8 +541,7 @@ class GridCore {
   // Churn picks its victims anywhere in the table: each erased object's records are prefetched
   // ahead in the order they depend on each other (the object, then its cell references, then
   // the work entries of the cells it leaves, which routing its erases writes; the cells
-  // themselves are not touched until they are applied). The work entries took S1-1M's erases
-  // (two threads, in the first routing run) from 0.26 to 0.215 ms.
+  // themselves are not touched until they are applied).
   void EraseObjects(std::span<const uint32_t> erases) {
     const size_t n = erases.size();
     for (size_t i = 0; i < n; ++i) {
@@ -732,9 +729,8 @@ class GridCore {
 
   // --- routing updates -------------------------------------------------------------------------
 
-  // Starts loading the records updates[i + 32] and updates[i + 16] read first (the grid's
-  // prefetch distances were half these: doubled, S1-1M's routing took 0.86x on one thread and
-  // 0.96x on two, S1-200k's 0.91x; the misses of a Zen 5 VM's memory are that long). Each loop
+  // Starts loading the records updates[i + 32] and updates[i + 16] read first (distances long
+  // enough for a virtual machine's memory misses; docs/TUNING.md). Each loop
   // spells these prefetches out: GCC 12 finds a helper whose only effect is a prefetch pure (a
   // prefetch touches no memory it models) and deletes the calls to it.
 #define BP_GRID_PREFETCH_UPDATE(updates, i, end)                           \
@@ -757,8 +753,7 @@ class GridCore {
       BP_GRID_PREFETCH_UPDATE(updates, i, n);
       if (i + 8 < n && cell_work_.size() > kWorkInCache) {
         // A third stage, when the work table outgrows the L2: the work entry of the object's
-        // first cell, which routing counts in (S1-1M's routing 0.91; on S3, whose table fits,
-        // the loads cost 5%).
+        // first cell, which routing counts in (where the table fits, these loads only cost).
         const Object& ahead = objects_[updates[i + 8].handle];
         if (ahead.nrefs != 0) Prefetch(&cell_work_[refs_[ahead.refs].cell]);
       }
@@ -785,18 +780,15 @@ class GridCore {
   //     (the front end stages one call per object) and share with the runs only the objects'
   //     table and refs_, in other records (and read refs_ only; their cells' work entries,
   //     touched_, routed_erases_ and the free references are the serial side's, and nothing
-  //     grows). On S1-1M (two threads, 5 000 erases, 0.25 ms) the routing took 0.1-0.2 ms less
-  //     than with the erases before it.
+  //     grows), so the erases no longer run before the routing.
   //  2. The shards' counts are merged per part, in parallel (MergeCounts); this also brings
-  //     the touched cells' work entries into the caches, where the serial pass finds them (when
-  //     the merge ran beside that pass instead, the pass took 1.75 ms, not 1.05).
+  //     the touched cells' work entries into the caches, where the serial pass finds them (so
+  //     the merge does not run beside that pass).
   //  3. One task makes the serial pass, in order: the rest of the updates the runs left
   //     (RouteDeferred), then the inserts. Beside it, the other threads run Apply's beside task
   //     (the front end's commit of its erased keys), then scatter the shards' updates by cell
   //     into grouped_shard_, part by part (ScatterShard), which the serial pass never touches.
-  //     On S1-1M (two threads) the pass took 1.5 ms, the scatter 0.87 beside it, then 0.66 of
-  //     the other thread idle: the beside task (0.66) fills it, and is no longer among the
-  //     cells' applies.
+  //     The pass is longer than the scatter; the beside task fills the other threads' wait.
   // A cell's updates are then its shards', in run order.
   bool RouteOnPool(std::span<const uint32_t> erases,
                    std::span<const HandleBox<kDim, Coord>> updates,
@@ -871,8 +863,7 @@ class GridCore {
     for (Shard& sh : shards_) {
       const std::vector<uint32_t>& d = sh.deferred;
       for (size_t k = 0; k < d.size(); ++k) {
-        // Prefetched as in the serial loop: these objects lie all over the table, and without
-        // it S1-1M's 3 400 deferred updates a frame took 1.0 ms, 0.7 with it.
+        // Prefetched as in the serial loop: these objects lie all over the table.
         if (k + 32 < d.size()) Prefetch(&objects_[updates[d[k + 32] & ~kKeptRouted].handle]);
         if (k + 16 < d.size()) {
           const Object& ahead = objects_[updates[d[k + 16] & ~kKeptRouted].handle];
@@ -901,8 +892,7 @@ class GridCore {
                 Shard& sh) {
     // The counts were last read and zeroed by whichever thread merged their part (MergeCounts):
     // a line is then a miss to the other core's cache, met at random. All are requested for writing
-    // at once first (S1-1M: 32 768 cells, 2 048 lines; 8% of the routing's samples waited on them),
-    // unless they outnumber the run's updates (then most lines are not touched).
+    // at once first, unless they outnumber the run's updates (then most lines are not touched).
     const char* counts = reinterpret_cast<const char*>(sh.counts.data());
     const size_t counts_bytes = sh.counts.size() * sizeof(uint32_t);
     if (counts_bytes / 64 <= end - begin) {
@@ -967,9 +957,8 @@ class GridCore {
     size_t listed = 0;
     for (const Shard& sh : shards_) listed += sh.touched[part].size();
     if (listed * 2 > last - first) {
-      // Most of the part's cells are touched (S1-1M): one sweep of the part in cell order, which
-      // reads the counts and work entries in memory order (through the lists, in routing order,
-      // the merge took 0.24 ms of a two-thread frame on both threads).
+      // Most of the part's cells are touched: one sweep of the part in cell order, which reads
+      // the counts and work entries in memory order (the lists are in routing order, random).
       for (uint32_t idx = first; idx < last; ++idx) {
         uint32_t count = 0;
         for (Shard& sh : shards_) count += std::exchange(sh.counts[idx], 0);
@@ -989,8 +978,7 @@ class GridCore {
   // cells' shard_work_ entries and their runs.
   void ScatterShard(size_t part) {
     // In cell order, as the cells are applied when most are touched (QueryCells): their
-    // updates are then read in memory order (in the order of the merge, applying S1-1M's cells
-    // took 0.3 ms longer).
+    // updates are then read in memory order.
     const uint32_t first = PartBegin(part), last = PartBegin(part + 1);
     uint32_t at = part_base_[part];
     for (uint32_t idx = first; idx < last; ++idx) {
@@ -1373,8 +1361,8 @@ class GridCore {
   // counts and sets end the same. (The layout of the sets' tables may differ, and with it the
   // order of ForEachOverlap: it never promised one.) A rebuild's recount (see Regrid) folds
   // serially. A change's fold (three probes of hash tables) counts as kWitnessWeight routed
-  // updates or key look-ups, PoolFor's unit: S1-200k's 2 000-3 000 changes a frame fold faster
-  // on two threads than on one (0.52x).
+  // updates or key look-ups, PoolFor's unit: a few thousand changes a frame fold faster on two
+  // threads than on one.
   static constexpr size_t kWitnessWeight = 4;
   void FoldCells() {
     size_t changes = 0;
@@ -1407,8 +1395,8 @@ class GridCore {
 
   // Starts loading the lines that folding change w (of FoldShard's shard) probes: the overlap
   // and changed sets' homes, and for a removal the witness table's. Spelled out in each loop,
-  // as BP_GRID_PREFETCH_UPDATE: GCC 12 deleted these prefetches from a lambda (only loads and
-  // prefetches: pure), and the one-thread fold took 15-27% longer (S1-200k, S3, S1-1M).
+  // as BP_GRID_PREFETCH_UPDATE: GCC 12 deletes these prefetches from a lambda (only loads and
+  // prefetches: pure), and the fold then waits on every probe.
 #define BP_GRID_PREFETCH_WITNESS(w)                                              \
   do {                                                                           \
     const uint64_t ahead_pair = HandlePair((w)->a, (w)->b);                      \
@@ -1757,8 +1745,8 @@ class GridCore {
     uint32_t a, b;
     bool now;
   };
-  // Line-aligned: the threads write theirs at once. (A record per cell, added up serially after,
-  // took 0.08 ms of S1-1M's frame.)
+  // Line-aligned: the threads write theirs at once. (Per thread rather than a record per cell
+  // added up serially after, which would be a serial loop over every touched cell.)
   struct alignas(64) ThreadOut {
     size_t swaps = 0, tests = 0, cells = 0;
     bool global_sort = false;

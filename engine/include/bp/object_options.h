@@ -2,8 +2,10 @@
 // tracks at all. A pair (a, b) is tracked, reported and counted iff Accepts(a, b):
 //   - the 64-bit category/mask filter passes both ways (Box2D's and Bullet's rule):
 //     (a.category & b.mask) != 0 && (b.category & a.mask) != 0;
-//   - and not both objects are static. Static objects are never tested against each other; they
+//   - and not both objects are static. Static objects are never paired with each other; they
 //     may still move (an update of a static object is an ordinary update).
+// A refused pair is never stored, counted or reported. Where an engine tests it first (box test,
+// then filter, or the other way round) is the engine's choice.
 // The defaults (category 1, mask all ones, dynamic) accept every pair, so an engine whose
 // objects all keep the defaults tracks exactly the overlapping pairs.
 //

@@ -55,8 +55,8 @@ struct SegmentedSapOptions {
   /// Extremum slots per chunk; a power of two in [4, 4096]. The paper finds ~32 best.
   uint32_t chunk_capacity = 32;
   /// A query re-sorts globally when the moved objects exceed this fraction of the live ones,
-  /// and per moved object otherwise. Measured with `bpbench --threshold-sweep` (README): the
-  /// crossover lies between 5% and 10% moved for 3k..30k objects on one SAP instance.
+  /// and per moved object otherwise: the crossover (`bpbench --threshold-sweep`) lies between 5%
+  /// and 10% moved for 3k..30k objects on one SAP instance.
   double global_sort_fraction = 0.07;
   /// A query whose inserts number at least max(bulk_load_min, live objects before it) rebuilds
   /// the lists by sorting and sweeping (O(n log n + pairs)) instead of inserting one object at a
@@ -66,9 +66,7 @@ struct SegmentedSapOptions {
   /// integrates them chunk by chunk from presorted records (each extremum of a touched chunk
   /// moves once per query) instead of one extremum at a time; 0 disables it (the paper's
   /// per-event path). It pays once events share chunks, i.e. from about as many events as
-  /// chunks per axis: measured in instructions (callgrind, bpbench's custom scene, 5% moving)
-  /// 300 objects break even at 32 events and save 15% at 200; chunks of 256 save 5% at 64 and
-  /// 34% at 800; 3000 objects in chunks of 32 pay up to 1.3% at 40..200 events, save 2% at 800.
+  /// chunks per axis (in instructions, a 300-object cell breaks even at about 32 events).
   uint32_t presorted_min = 32;
 };
 
@@ -694,7 +692,7 @@ class SegmentedSapCore {
   // The part of an erase that needs h's extrema still in place: its pairs end and it leaves
   // the checkpoints of the chunks it spans. Flattened (its callees inlined into it) so that both
   // erase paths run the same code: left alone, GCC 12 inlined PairTracker::Remove into the
-  // per-event loop but not into the batch one (5% more instructions at 100 erases a frame).
+  // per-event loop but not into the batch one.
   [[gnu::flatten]] void ForgetPairsAndCheckpoints(uint32_t h) {
     BP_ASSERT(h < live_flag_.size() && live_flag_[h] == 1);
     ForEachAxis0Candidate(h, [&](uint32_t b) { tracker_.Remove(h, b); });
@@ -803,8 +801,8 @@ class SegmentedSapCore {
     }
     // Two new objects that overlap on axis 0 are candidates of each other (the candidates are a
     // superset of the axis-0 overlaps), so such a pair is met twice. Testing it from the lower
-    // handle only costs a flag check per candidate (2.4% of all instructions with 100 new among
-    // 3000): worth it only when new objects make up a good part of the candidates.
+    // handle only costs a flag check per candidate: worth it only when new objects make up a
+    // good part of the candidates.
     if (inserts.size() * 4 >= live_) {
       TestNewCandidates<true>(inserts);
     } else {

@@ -1,5 +1,5 @@
 // bp::workload: the paper's synthetic benchmark scene, bit-exact as pinned down in
-// shared/WORKLOADS.md (uniform cubes, density 5%, speed 10% of the width, bouncing, churn),
+// docs/WORKLOADS.md (uniform cubes, density 5%, speed 10% of the width, bouncing, churn),
 // and the pair-set hashes whose golden values that page lists. Shared by tests and bpbench.
 //
 // Thread safety: a Scene is not thread-safe; distinct Scenes are independent.

@@ -1,4 +1,4 @@
-// The named scenarios of shared/WORKLOADS.md and their golden values (seed 12345), shared by the
+// The named scenarios of docs/WORKLOADS.md and their golden values (seed 12345), shared by the
 // golden tests and bpbench. Two independent implementations of WORKLOADS.md agree on these.
 //
 // Thread safety: constant data.

@@ -6,10 +6,9 @@
 //
 // Why: these arrays are read at random (a frame's updates name objects all over them), and with
 // 4 KiB pages nearly every such read also misses the TLB, whose refill in a virtual machine walks
-// two page tables. With glibc's malloc on huge pages (GLIBC_TUNABLES=glibc.malloc.hugetlb=1, a
-// setting of whoever starts the process), S1-1M ran 7% faster and S1-200k 4% (bpbench, pinned,
-// alternating rounds, 2026-11-26); this allocator gives the engine the same for its own large
-// arrays in any program, with no setting.
+// two page tables. glibc's malloc on huge pages (GLIBC_TUNABLES=glibc.malloc.hugetlb=1) would do
+// the same, but only for a process started with that setting; this allocator gives the engine
+// huge pages for its own large arrays in any program, with no setting.
 //
 // Cost: a mapped array's length is rounded up to 2 MiB, and a huge page is backed whole once
 // touched, so each mapped array may hold up to 2 MiB more than it uses.

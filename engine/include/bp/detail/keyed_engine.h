@@ -137,9 +137,8 @@ class KeyedEngine final : public Broadphase<Core::kDim, typename Core::Coord, Ke
     return UpdateTagged(key, KeyIndex<Key>::Tag(key), box, kNoHandle);
   }
 
-  /// As Update per item, with the look-ups of later items started early (ForEachAhead): perf on
-  /// the daemon at S1-200k put 24% of its time in a loop of Update calls, nearly all waiting on
-  /// the key index's line and the slot, one item after the other.
+  /// As Update per item, with the look-ups of later items started early (ForEachAhead): a loop
+  /// of Update calls waits on the key index's line and the slot, one item after the other.
   size_t UpdateMany(std::span<const typename Base::Item> items,
                     const typename Base::RefusedFn& refused = nullptr) override {
     if (margin_ == T{}) {
@@ -199,9 +198,8 @@ class KeyedEngine final : public Broadphase<Core::kDim, typename Core::Coord, Ke
 
     // The changed pairs' handles, then (ConvertDrained) their keys, sorted, the collides and the
     // uncollides apart; and the commit of the erased slots if not done yet. The three share
-    // nothing but reads of slots_' keys, so with a worker pool they run side by side: on S1-1M's
-    // two-thread frame (about 10 000 events and 5 000 erases) the conversion took 0.75 ms and
-    // the commit 0.5.
+    // nothing but reads of slots_' keys, so with a worker pool they run side by side (in a large
+    // frame each is a sizeable share of the events phase).
     for (std::vector<Drained>& d : drained_) d.clear();
     core_.tracker().DrainChanges([&](uint32_t a, uint32_t b, bool now) {
       drained_[now ? 1 : 0].push_back(Drained{a, b});
@@ -459,12 +457,11 @@ class KeyedEngine final : public Broadphase<Core::kDim, typename Core::Coord, Ke
   // a large scene both are cache misses, which a plain loop waits for one after the other).
   // Each key's tag is computed once, kAhead items ahead, and kept in a ring until its item's
   // turn. The handle found for the prefetch is kept too, and passed as the item's hint while
-  // the index has not changed since (else kNoHandle): see Lookup. On S1-200k that saved a
-  // second probe of the key's run per update: 0.2 million instructions per frame net (0.8%).
+  // the index has not changed since (else kNoHandle): see Lookup; that saves a second probe of
+  // the key's run per update.
   // apply returns the item's Status; a refused item is passed to refused (when set) with its
-  // index. Returns the number refused. kAhead was 16: 32 took 17-21% off the calls phase
-  // (S1-200k, S1-1M, one thread) and 64 another 5-7% (S1-200k, S1-1M, S3; alternating rounds on
-  // a Zen 5 VM, 2026-11-27): this VM's misses are that long.
+  // index. Returns the number refused. kAhead is 64 because a miss on a virtual machine lasts
+  // long enough to need that many look-ups in flight (docs/TUNING.md, front end).
   template <class Item, class KeyOf, class Apply>
   size_t ForEachAhead(std::span<const Item> items, KeyOf&& key_of,
                       const typename Base::RefusedFn& refused, Apply&& apply) {
@@ -587,9 +584,9 @@ class KeyedEngine final : public Broadphase<Core::kDim, typename Core::Coord, Ke
   // item) leaves a tombstone at its entry and is deferred: the deferred items then go through
   // UpdateTagged on this thread, in item order, except that an item whose key a later item of
   // the batch staged in parallel is skipped (the later box wins, as in order). So the batch
-  // ends as the serial loop leaves it, up to the entries' order in updates_. On S1-1M (100 000
-  // updates a frame) the serial staging after the parallel look-ups took 1.1 ms of a
-  // two-thread frame.
+  // ends as the serial loop leaves it, up to the entries' order in updates_. Staging on the pool
+  // matters because a serial staging after parallel look-ups would be a large serial share of
+  // a two-thread frame.
   size_t UpdateManyOn(WorkerPool* pool, std::span<const typename Base::Item> items,
                       const typename Base::RefusedFn& refused) {
     const size_t base = updates_.size();
@@ -735,8 +732,7 @@ class KeyedEngine final : public Broadphase<Core::kDim, typename Core::Coord, Ke
   // and the slots prefetched from the handles, kAhead items ahead. A hint is dropped once the
   // index changed (an erase of a pending insert): Lookup then searches, as without a hint. The
   // slots are prefetched for writing: the look-ups left them shared with the other thread's
-  // cache, and the first store to each then waited for the line (perf: 37% of UpdateTagged on
-  // one store).
+  // cache, and the first store to each would then wait for the line.
   template <class Item, class KeyOf, class Apply>
   size_t ForEachResolved(std::span<const Item> items, KeyOf&& key_of,
                          const typename Base::RefusedFn& refused, Apply&& apply) {

@@ -4,9 +4,8 @@
 // Why: GCC and clang turn __builtin_prefetch(p, 1) into a plain read prefetch unless the build
 // targets a CPU with PREFETCHW (this project builds for baseline x86-64). A line read-prefetched
 // from another core's cache arrives shared, and the write then waits again while that core's
-// copy is invalidated: on S1-1M with two threads, the grid's cells phase waited on such lines
-// (cell records, work entries) that the other thread had written while routing, and with
-// PREFETCHW the phase took 8.5% less (bpbench, alternating rounds, 2026-11-27).
+// copy is invalidated. The grid's cells phase writes such lines (cell records, work entries)
+// that the other thread wrote while routing.
 //
 // Thread safety: stateless after the first call's CPU check (a function-local static).
 #pragma once

@@ -11,8 +11,8 @@
 // A loop does not wait for a worker that has not joined it: the caller runs runs itself until
 // none is left, closes the loop, and waits only for the workers counted in it (a worker that
 // counted itself in just before the close leaves at once, having found no run). A worker woken late
-// (a virtual CPU's wake-up took 1-2 ms at times on this project's machine, and an S2a frame is
-// 0.02 ms) finds the loop closed and goes back to waiting.
+// (a virtual CPU's wake-up can take milliseconds, many times a small frame) finds the loop
+// closed and goes back to waiting.
 // Invariants:
 //  1. Outside ParallelFor open_ is false, no worker runs a body and none is referenced (a late
 //     worker may still count itself in and out of active_, touching nothing else).
@@ -174,8 +174,8 @@ class WorkerPool {
 
 /// Cuts [0, n) into runs for a ParallelFor over run indices (grain 1) whose runs start cold: a
 /// run's look-ahead or prefetches have nothing in flight when it begins, so runs of a fixed
-/// small size pay that often (the grid's cells in runs of 32: about 1 000 cold starts per
-/// S1-1M frame on two threads; 5.5% of its cells phase). Guided: each run a quarter of what is
+/// small size pay that often (the grid's cells in runs of 32 would start cold about a thousand
+/// times in a million-object frame). Guided: each run a quarter of what is
 /// left per thread, in whole units of `unit`, between `least` and `most` (multiples of unit), the
 /// last run the rest; long runs first, short ones at the end, so that the threads finish
 /// together. Run r is [(*runs)[r], (*runs)[r + 1]); runs->size() - 1 runs.
