@@ -165,6 +165,47 @@ TEST(ConfigShipped, SpellsOutEveryKeyInTheOrderOfConfigToYaml) {
   }
 }
 
+// docs/OPERATIONS.md's configuration reference: one table row per key, `section.key` in the
+// first column and the default in the third, exactly as ConfigToYaml prints it. Every key the
+// reader takes is documented once, with its default; nothing else is.
+TEST(ConfigDocs, OperationsReferenceListsEveryKeyWithItsDefault) {
+  std::vector<std::pair<std::string, std::string>> printed;  // dotted key, value
+  std::vector<std::string> path;
+  for (const std::string& line : Lines(ConfigToYaml(Config()))) {
+    const size_t indent = line.find_first_not_of(' ') / 2;
+    const size_t colon = line.find(':');
+    path.resize(indent);
+    path.push_back(line.substr(indent * 2, colon - indent * 2));
+    if (colon + 1 == line.size()) continue;  // a section
+    std::string key;
+    for (const std::string& part : path) key += (key.empty() ? "" : ".") + part;
+    printed.emplace_back(key, line.substr(colon + 2));
+  }
+  std::vector<std::pair<std::string, std::string>> documented;
+  for (const std::string& line : Lines(ReadFile(BP_SOURCE_DIR "/docs/OPERATIONS.md"))) {
+    // | `section.key` | type | default | meaning |
+    if (line.rfind("| `", 0) != 0) continue;
+    std::vector<std::string> cells;
+    for (size_t at = 1; at < line.size();) {
+      const size_t bar = line.find(" |", at);
+      if (bar == std::string::npos) break;
+      std::string cell = line.substr(at, bar - at);
+      cell.erase(0, cell.find_first_not_of(' '));
+      cells.push_back(cell);
+      at = bar + 2;
+    }
+    if (cells.size() != 4) continue;
+    const std::string key = cells[0].substr(1, cells[0].find('`', 1) - 1);
+    if (key.find('.') == std::string::npos || key.find(' ') != std::string::npos) continue;
+    std::string value = cells[2];
+    if (value.size() >= 2 && value.front() == '`' && value.back() == '`') {
+      value = value.substr(1, value.size() - 2);
+    }
+    documented.emplace_back(key, value);
+  }
+  EXPECT_EQ(documented, printed) << "docs/OPERATIONS.md and ConfigToYaml(Config()) disagree";
+}
+
 TEST(ConfigShipped, LoadsAndResolvesTheCycloneConfigNextToIt) {
   Config c;
   const std::string path = BP_SOURCE_DIR "/config/broadphased.yaml";
