@@ -6,8 +6,8 @@
 //
 // Why: with the grid's cells small (tens of objects), sorting buys nothing, while the SAP cells'
 // bookkeeping (sorted lists, positions, a pair set per cell, swaps that touch their neighbours'
-// records) is scattered memory traffic, and that is what a frame of S1-200k spends its time on
-// (perf: the first touches of each moved extremum and of its neighbours' boxes). Here a changed
+// records) is scattered memory traffic, and that is where a large frame's time goes (the first
+// touches of each moved extremum and of its neighbours' boxes). Here a changed
 // object costs two sequential, vectorisable passes over at most a few kilobytes, and a cell
 // reports only changes (the grid's witness counts need nothing else), so it holds no pair set.
 // The cost per changed object is linear in the cell's population: keep the cells small (the
@@ -431,7 +431,7 @@ class DenseCellCore {
 
   /// Starts loading the rows, live bits and change buffer a query reads (the grid calls it two
   /// cells ahead). Not the matrix: a query reads its changed slots' rows of it only, and loading
-  /// all of it measured no better on S1-200k (0.98 against 0.95 of the build before).
+  /// all of it gains nothing.
   void Prefetch() const {
     const char* p = reinterpret_cast<const char*>(rows_.data());
     const size_t bytes = rows_.size() * sizeof(T);
@@ -711,8 +711,8 @@ class DenseCellCore {
                      if (std::find(order.begin(), order.end(), j) != order.end()) return;
                      if (Accepts(c, j)) changes_.push_back(Change{c, j, now});
                    });
-        // The pairs among the changed slots, tested without branches (perf on S1-200k: the
-        // short-circuit branches of this loop held most of this function's samples).
+        // The pairs among the changed slots, tested without branches: this loop's short-circuit
+        // branches are unpredictable, and they held most of its time.
         const Box<K, T> c_now = BoxAt(c);
         const uint32_t c_live = Live(c) ? 1u : 0u;
         for (uint32_t q = r + 1; q < order.size(); ++q) {

@@ -1089,7 +1089,7 @@ class GridCore {
   }
   // Inserts and erases of cell slots are buffered like updates, in query-wide arrays grouped by
   // cell before the cells are applied: per-cell vectors cost a miss on each first push and
-  // again on each cell's first read (perf: half of the dense cell's Apply samples).
+  // again on each cell's first read.
   // ref_at: where the object's reference to the cell sits when its local handle is still to be
   // allocated (ref.local is then the global handle), else kNone.
   void RouteInsert(CellRef ref, const BoxType& box, uint32_t ref_at) {
@@ -1163,8 +1163,7 @@ class GridCore {
   // Writes each of v's updates at its cell's write cursor in dst (cursor(cell), advanced). When
   // the cursors' table is far from the cache (far), cells and cursors lie all over a table
   // larger than the L2: the cursor's line is prefetched 32 updates ahead, then the line the
-  // cursor points at 16 ahead, for writing (on a table that fits, the prefetches measured a
-  // cost: S1-200k's cells phase 1.06).
+  // cursor points at 16 ahead, for writing (on a table that fits, the prefetches only cost).
   template <class Cursor>
   static void ScatterRouted(const HugeVector<Routed>& v, HandleBox<kDim, Coord>* dst, bool far,
                             Cursor&& cursor) {
