@@ -15,8 +15,8 @@
 //    slots' rows and pair bits (S1-1M: about 51 slots, 1.2 KiB of rows and 0.3 of pair bits a
 //    cell, most of them written): bound by the lines the memory system reads and writes back
 //    at once.
-// The README quotes it next to the grid's two-thread ratios: if the machine scales and the
-// engine does not, the engine's serial part is the bound.
+// Read it beside the grid's two-thread ratios: if the machine scales and the engine does not,
+// the engine's serial part is the bound.
 #include <algorithm>
 #include <atomic>
 #include <chrono>

@@ -193,8 +193,8 @@ TEST(Grid, OneAxis) {
 }
 
 // Cells are counted from an origin at the middle of the first objects, so a world far from zero
-// gets the cells it would get at zero (it used to get one cell per 2^-20 of the coordinates'
-// magnitude: a single cell at 1e12), and stays exact.
+// gets the cells it would get at zero (not one cell per 2^-20 of the coordinates' magnitude,
+// which would be a single cell at 1e12), and stays exact.
 TEST(Grid, FarWorldKeepsSmallAutomaticCells) {
   for (double origin : {0.0, 1e12, -1e12}) {
     GridDense<3, double> engine;

@@ -403,8 +403,8 @@ class DenseCellCore {
   /// Gives back trailing blocks that free slots below could absorb: when the live slots and
   /// kCompactSlack free ones fit in fewer blocks, the live slots of the blocks beyond are moved
   /// into the lowest free slots, moved(from, to) is called for each, and the arrays shrink. Without
-  /// it a cell keeps the largest population it ever had (on S1-200k the blocks per cell grew
-  /// from 2.98 to 3.32 in 100 frames and 3.94 in 3000), and every query scans the holes. Moving a
+  /// it a cell keeps the largest population it ever had (under churn its blocks per cell keep
+  /// growing), and every query scans the holes. Moving a
   /// slot changes no pair. Call between queries (no change pending).
   template <class Moved>
   void Compact(Moved&& moved) {

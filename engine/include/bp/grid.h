@@ -916,8 +916,8 @@ class GridCore {
         continue;
       }
       // A small object that stays small migrates: its updates in the cells it keeps are routed
-      // here, and the rest left for the serial pass (RouteDeferred); on S1-1M those were 20 000
-      // of its 30 000 cell operations. Any other update is left whole.
+      // here (most of a migration's cell operations), and the rest left for the serial pass
+      // (RouteDeferred). Any other update is left whole.
       CellCoord lo, hi;
       RangeOf(box, &lo, &hi);
       if (o.large != kNone || CellCount(lo, hi) > options_.max_cells_per_object) {
@@ -1353,7 +1353,7 @@ class GridCore {
   // applied it and of each pair's shard of the tracker (ApplyCell). With a pool and enough
   // changes, each shard is folded by one thread (FoldShard): a pair's witness count and sets
   // lie in its shard alone. The changes are folded in any order (each thread's buffer whole, one
-  // after the other; merging them in the order of touched_ took a fifth of the fold on S1-1M):
+  // after the other, which is cheaper than merging them in the order of touched_):
   // the events do not depend on it. A cell removes only a pair it held at the last query, which
   // the pair's count includes, so no order takes a count below zero; a pair whose count passes
   // through zero leaves the overlap set and comes back, which the tracker cancels; and the
