@@ -19,9 +19,11 @@ std::string ItemName(wire::Op op, uint32_t index, uint64_t id) {
   return std::string(what) + "[" + std::to_string(index) + "] id " + std::to_string(id);
 }
 
-// A coordinate in a message, in the shortest form that reads back as the same value ("1e+300",
-// "0.1"), where std::to_string would print every digit of a large value.
-std::string ShortNumber(double v) {
+// A coordinate in a message, in the shortest form that reads back as the same value of its own
+// type ("1e+300", a float's "0.1"), where std::to_string would print every digit of a large
+// value.
+template <class S>
+std::string ShortNumber(S v) {
   char text[32];
   const auto result = std::to_chars(text, text + sizeof(text), v);
   return std::string(text, result.ptr);
@@ -40,7 +42,7 @@ bool ConvertCoordinate(S v, bool is_lo, T* out, wire::RejectReason* reason, std:
     if constexpr (sizeof(S) > sizeof(T)) {
       if (std::fabs(v) > static_cast<S>(std::numeric_limits<T>::max())) {
         *reason = wire::NOT_FINITE;
-        *why = ShortNumber(static_cast<double>(v)) + ", out of the engine's float range";
+        *why = ShortNumber(v) + ", out of the engine's float range";
         return false;
       }
       T t = static_cast<T>(v);
@@ -56,8 +58,7 @@ bool ConvertCoordinate(S v, bool is_lo, T* out, wire::RejectReason* reason, std:
   } else {
     if (std::trunc(v) != v) {
       *reason = wire::NOT_INTEGRAL;
-      *why = ShortNumber(static_cast<double>(v)) +
-             ", not an integer (the engine's coordinates are integers)";
+      *why = ShortNumber(v) + ", not an integer (the engine's coordinates are integers)";
       return false;
     }
     // Compared in double, where every int32 bound is exact: as a float, INT32_MAX rounds up to
@@ -66,7 +67,7 @@ bool ConvertCoordinate(S v, bool is_lo, T* out, wire::RejectReason* reason, std:
     if (d < static_cast<double>(std::numeric_limits<T>::min()) ||
         d > static_cast<double>(std::numeric_limits<T>::max())) {
       *reason = wire::NOT_FINITE;
-      *why = ShortNumber(static_cast<double>(v)) + ", out of the engine's integer range";
+      *why = ShortNumber(v) + ", out of the engine's integer range";
       return false;
     }
     *out = static_cast<T>(v);
@@ -232,9 +233,8 @@ class TypedHost final : public EngineHost {
       }
       if (lo[a] > hi[a]) {
         *reason = wire::INVERTED;
-        *why = "lo > hi on axis " + std::to_string(a) + " (" +
-               ShortNumber(static_cast<double>(lo[a])) + " > " +
-               ShortNumber(static_cast<double>(hi[a])) + ")";
+        *why = "lo > hi on axis " + std::to_string(a) + " (" + ShortNumber(lo[a]) + " > " +
+               ShortNumber(hi[a]) + ")";
         return false;
       }
     }

@@ -37,10 +37,10 @@ Status Subscriber<Msg>::Poll(std::chrono::milliseconds timeout, std::vector<Msg>
     Status st = reader_.Take(
         256,
         [&](const dds::Received& r) {
-          // A number at or below the last one starts a new run of the sequence (a restarted
-          // daemon numbers from 1 again): gaps are counted within it from there.
-          if (last_seq_ != 0 && r.seq > last_seq_ + 1) gaps_ += r.seq - last_seq_ - 1;
-          last_seq_ = r.seq;
+          // Counted per writer: a restarted daemon is a new writer and numbers from 1 again.
+          uint64_t& last = last_seq_[r.info != nullptr ? r.info->publication_handle : 0];
+          if (last != 0 && r.seq > last + 1) gaps_ += r.seq - last - 1;
+          last = r.seq;
           Msg msg;
           if (!msg.ParseFromArray(r.payload.data(), static_cast<int>(r.payload.size()))) {
             ++malformed_;

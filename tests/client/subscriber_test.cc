@@ -6,18 +6,17 @@
 #include <memory>
 #include <vector>
 
-#include <gtest/gtest.h>
-
 #include "../service/service_test_support.h"
+#include <gtest/gtest.h>
 
 namespace bp::test {
 namespace {
 
 using namespace std::chrono_literals;
 
-// The sequence of a restarted daemon starts again at 1: the gaps within its run still count,
-// though its numbers are below the ones of the daemon before it.
-TEST(Subscriber, CountsGapsWithinEachRunOfTheSequence) {
+// Each daemon run is a writer of its own whose sequence starts again at 1: gaps are counted per
+// writer, whether the new run's first numbers delivered are below the old run's last or above.
+TEST(Subscriber, CountsGapsPerWriter) {
   const service::Config config = TestConfig(BP_TEST_DOMAIN);
   std::unique_ptr<client::Connection> connection;
   BP_ASSERT_OK(client::Connection::Open(ClientOptions(config), &connection));
@@ -25,11 +24,8 @@ TEST(Subscriber, CountsGapsWithinEachRunOfTheSequence) {
   BP_ASSERT_OK(client::EventSubscriber::Create(*connection, 64, &events));
   dds::Qos qos;
   client::qos::EventsWriter(qos.get(), 64, 1000ms);
-  dds::Writer writer;
-  BP_ASSERT_OK(connection->CreateWriter(client::TopicId::kEvents, qos, &writer));
-  BP_ASSERT_OK(events->WaitForDaemon(10s));  // the writer is matched
   std::vector<wire::EventBatch> received;
-  auto send = [&](std::vector<uint64_t> seqs) {
+  auto send = [&](dds::Writer& writer, std::vector<uint64_t> seqs) {
     for (uint64_t seq : seqs) {
       wire::EventBatch part;
       part.set_sequence(seq);
@@ -42,10 +38,21 @@ TEST(Subscriber, CountsGapsWithinEachRunOfTheSequence) {
     }
     ASSERT_EQ(received.size(), want);
   };
-  send({1, 2, 3, 4, 5, 6, 7, 8, 10});  // 9 missing
+  auto writer = [&]() {
+    dds::Writer w;
+    EXPECT_TRUE(connection->CreateWriter(client::TopicId::kEvents, qos, &w).ok());
+    EXPECT_TRUE(w.WaitForReaders(1, 10s).ok());  // nothing written before the match is lost
+    return w;
+  };
+  dds::Writer first = writer();
+  send(first, {1, 2, 3, 4, 5, 6, 7, 8, 10});  // 9 missing
   EXPECT_EQ(events->gaps(), 1u);
-  send({1, 2, 4});  // a new run: 3 missing
+  dds::Writer second = writer();
+  send(second, {12, 13, 15});  // its first parts lost before it matched: only 14 counts
   EXPECT_EQ(events->gaps(), 2u);
+  dds::Writer third = writer();
+  send(third, {1, 2, 4});  // below the others' numbers: 3 missing
+  EXPECT_EQ(events->gaps(), 3u);
   EXPECT_EQ(events->malformed(), 0u);
 }
 

@@ -15,6 +15,7 @@
 #include <memory>
 #include <mutex>
 #include <thread>
+#include <unordered_map>
 #include <vector>
 
 #include "broadphase.pb.h"
@@ -49,8 +50,8 @@ class Subscriber {
   ~Subscriber() { StopListening(); }
   /// Payloads that did not parse.
   uint64_t malformed() const { return malformed_.load(); }
-  /// Envelopes missing between consecutive received sequence numbers. A number at or below the
-  /// last one received (a restarted daemon's) starts the count again from it.
+  /// Envelopes missing between consecutive sequence numbers received from one writer. Each
+  /// writer (a restarted daemon is a new one) is counted from the first number it delivers.
   uint64_t gaps() const { return gaps_.load(); }
 
  private:
@@ -61,7 +62,9 @@ class Subscriber {
   std::atomic<bool> listening_{false};
   mutable std::mutex listen_mutex_;
   Status listen_status_;
-  uint64_t last_seq_ = 0;
+  // The last sequence number received from each writer (by publication handle): a restarted
+  // daemon is a new writer whose numbers start again.
+  std::unordered_map<uint64_t, uint64_t> last_seq_;
   // Atomic: read by the application while the listener thread counts.
   std::atomic<uint64_t> malformed_{0};
   std::atomic<uint64_t> gaps_{0};
