@@ -21,6 +21,12 @@
 // also when a write failed, so subscribers see every loss as a gap; every part carries the
 // run's random epoch; a batch's valid items are applied even when others
 // are rejected; no input makes Run() fail (only DDS failures do).
+//
+// The code is one file per concern: daemon.cc (creation, the loop, intake), daemon_producers.cc
+// (producers over time), daemon_output.cc (frames, events, snapshots, status). Why one class of
+// about thirty members: every concern runs on the one thread of Run() and reads the others'
+// state (a frame reads the producers' resyncs, the status the intake's counters); the members
+// are grouped by concern below.
 #pragma once
 
 #include <atomic>
@@ -38,9 +44,9 @@
 #include "engine_host.h"
 #include "keep_awake.h"
 
-#include "bp/client/connection.h"
-#include "bp/dds/dds.h"
 #include "bp/status.h"
+#include "bp/transport/connection.h"
+#include "bp/transport/dds.h"
 
 namespace bp::service {
 
@@ -72,6 +78,9 @@ class Daemon {
   bool serving() const { return serving_.load(); }
 
  private:
+  // Samples a take reads at most (updates and requests).
+  static constexpr size_t kTakeBatch = 64;
+
   Daemon() = default;
   void ProcessPayload(std::span<const uint8_t> payload, const dds_sample_info_t& info);
   bool ClaimProducer(uint32_t producer, dds_instance_handle_t writer);
@@ -124,7 +133,7 @@ class Daemon {
   std::unique_ptr<EngineHost> host_;
   std::unique_ptr<KeepAwake> keep_awake_;     // frames.keep_cpus_awake_ms > 0, while Run serves
   std::atomic<unsigned> cpus_kept_awake_{0};  // its threads, for other threads to read
-  std::unique_ptr<client::Connection> connection_;
+  std::unique_ptr<transport::Connection> connection_;
   dds::Reader updates_;
   dds::Writer events_;
   dds::Writer status_;

@@ -39,3 +39,24 @@ execute_process(COMMAND ${WORK_DIR}/client-build/client_standalone 15 200 RESULT
 if(NOT rc EQUAL 0)
   message(FATAL_ERROR "the client example failed: ${rc}")
 endif()
+
+# The components: each loads what it names (and the engine), and an unknown one is refused.
+file(MAKE_DIRECTORY ${WORK_DIR}/components)
+file(WRITE ${WORK_DIR}/components/CMakeLists.txt [=[
+cmake_minimum_required(VERSION 3.25)
+project(components LANGUAGES C CXX)
+find_package(broadphase 0.1 REQUIRED CONFIG COMPONENTS transport)
+if(NOT TARGET broadphase::transport OR NOT TARGET broadphase::engine OR TARGET broadphase::engines
+   OR TARGET broadphase::client)
+  message(FATAL_ERROR "COMPONENTS transport loaded the wrong targets")
+endif()
+find_package(broadphase 0.1 CONFIG COMPONENTS no_such_component QUIET)
+if(broadphase_FOUND)
+  message(FATAL_ERROR "an unknown component was accepted")
+endif()
+]=])
+execute_process(COMMAND ${CMAKE_COMMAND} -S ${WORK_DIR}/components -B ${WORK_DIR}/components/build
+  -G Ninja -DCMAKE_PREFIX_PATH=${WORK_DIR}/prefix RESULT_VARIABLE rc)
+if(NOT rc EQUAL 0)
+  message(FATAL_ERROR "the package's components load the wrong targets: ${rc}")
+endif()

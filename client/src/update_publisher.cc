@@ -5,7 +5,6 @@
 #include <thread>
 
 #include "kept_objects.h"
-#include <time.h>
 
 namespace bp::client {
 namespace {
@@ -22,12 +21,6 @@ UpdatePublisher::UpdatePublisher() : kept_(std::make_unique<KeptObjects>()) {}
 UpdatePublisher::~UpdatePublisher() = default;
 
 size_t UpdatePublisher::kept_objects() const { return kept_->size(); }
-
-uint64_t WallClockNs() {
-  timespec ts{};
-  clock_gettime(CLOCK_REALTIME, &ts);
-  return static_cast<uint64_t>(ts.tv_sec) * 1'000'000'000u + static_cast<uint64_t>(ts.tv_nsec);
-}
 
 Status UpdatePublisher::Create(Connection& connection, uint32_t producer,
                                std::chrono::milliseconds write_timeout,

@@ -11,7 +11,7 @@
 #include "../service/service_test_support.h"
 #include "commands.h"
 
-#include "bp/wire/recording.h"
+#include "bp/transport/recording.h"
 
 namespace bp::test {
 namespace {
@@ -39,8 +39,8 @@ FrameMap CollectFrames(EventCollector& events, uint64_t frames) {
 template <class Publish>
 FrameMap RunDaemon(const service::Config& config, uint64_t frames, Publish publish) {
   InProcessDaemon daemon(config);
-  std::unique_ptr<client::Connection> connection;
-  EXPECT_TRUE(client::Connection::Open(ClientOptions(config), &connection).ok());
+  std::unique_ptr<transport::Connection> connection;
+  EXPECT_TRUE(transport::Connection::Open(ClientOptions(config), &connection).ok());
   EventCollector events(*connection);
   EXPECT_TRUE(events.subscriber().WaitForDaemon(10s).ok());
   std::thread publisher(publish);

@@ -18,12 +18,12 @@ using namespace std::chrono_literals;
 // writer, whether the new run's first numbers delivered are below the old run's last or above.
 TEST(Subscriber, CountsGapsPerWriter) {
   const service::Config config = TestConfig(BP_TEST_DOMAIN);
-  std::unique_ptr<client::Connection> connection;
-  BP_ASSERT_OK(client::Connection::Open(ClientOptions(config), &connection));
+  std::unique_ptr<transport::Connection> connection;
+  BP_ASSERT_OK(transport::Connection::Open(ClientOptions(config), &connection));
   std::unique_ptr<client::EventSubscriber> events;
   BP_ASSERT_OK(client::EventSubscriber::Create(*connection, 64, &events));
   dds::Qos qos;
-  client::qos::EventsWriter(qos.get(), 64, 1000ms);
+  transport::qos::EventsWriter(qos.get(), 64, 1000ms);
   std::vector<wire::EventBatch> received;
   auto send = [&](dds::Writer& writer, std::vector<uint64_t> seqs) {
     for (uint64_t seq : seqs) {
@@ -40,7 +40,7 @@ TEST(Subscriber, CountsGapsPerWriter) {
   };
   auto writer = [&]() {
     dds::Writer w;
-    EXPECT_TRUE(connection->CreateWriter(client::TopicId::kEvents, qos, &w).ok());
+    EXPECT_TRUE(connection->CreateWriter(transport::TopicId::kEvents, qos, &w).ok());
     EXPECT_TRUE(w.WaitForReaders(1, 10s).ok());  // nothing written before the match is lost
     return w;
   };

@@ -265,7 +265,7 @@ void BurstIntoOneChunk(uint32_t presorted_min, size_t* out_swaps) {
   }
   ASSERT_NO_FATAL_FAILURE(h.Query());
   ASSERT_TRUE(h.engine().GetStats().rebuilt);
-  size_t chunks = h.engine().GetStats().chunks;
+  size_t chunks = h.engine().GetStats().segmented_sap.value().chunks;
   size_t presorted = h.presorted();
   for (uint64_t k = 0; k < 500; ++k) {
     T lo = static_cast<T>(5001 + static_cast<int>(k % 3));  // inside [5000, 5005]
@@ -278,7 +278,7 @@ void BurstIntoOneChunk(uint32_t presorted_min, size_t* out_swaps) {
   EXPECT_EQ(h.presorted(), presorted + (presorted_min != 0 ? 1 : 0));
   if (presorted_min != 0) {
     // 1000 + 4 extrema over chunks of 2..3 (evenly, at most 3/4 full): >= 334 per axis.
-    EXPECT_GE(stats.chunks, chunks + 3 * 333) << chunks;
+    EXPECT_GE(stats.segmented_sap.value().chunks, chunks + 3 * 333) << chunks;
     EXPECT_LE(stats.swaps, 3u * 4u);  // one chunk per axis, each extremum moved once
   }
   *out_swaps = stats.swaps;
@@ -287,7 +287,7 @@ void BurstIntoOneChunk(uint32_t presorted_min, size_t* out_swaps) {
   for (uint64_t k = 0; k < 500; ++k) h.Erase(1000 + k);
   ASSERT_NO_FATAL_FAILURE(h.Query());
   if (presorted_min != 0) {
-    EXPECT_LE(h.engine().GetStats().chunks, chunks + 3 * 2);
+    EXPECT_LE(h.engine().GetStats().segmented_sap.value().chunks, chunks + 3 * 2);
   }
 }
 
@@ -317,7 +317,7 @@ class SegmentedPresortedChunks : public ::testing::Test {
     }
     ASSERT_NO_FATAL_FAILURE(h_.Query());
     ASSERT_TRUE(h_.engine().GetStats().rebuilt);
-    ASSERT_EQ(h_.engine().GetStats().chunks, 2u * kGroups);
+    ASSERT_EQ(h_.engine().GetStats().segmented_sap.value().chunks, 2u * kGroups);
   }
   static uint64_t Key(int group, int i) { return static_cast<uint64_t>(3 * group + i); }
 
@@ -330,7 +330,7 @@ TEST_F(SegmentedPresortedChunks, EraseEveryObjectOfOneChunk) {
   ASSERT_NO_FATAL_FAILURE(h_.Query());
   EXPECT_EQ(h_.sink().uncollides, (Pairs{{Key(10, 0), Key(10, 1)}}));
   // The chunk is gone on both axes and its neighbours (6 + 6) do not merge.
-  EXPECT_EQ(h_.engine().GetStats().chunks, 2u * (kGroups - 1));
+  EXPECT_EQ(h_.engine().GetStats().segmented_sap.value().chunks, 2u * (kGroups - 1));
   EXPECT_EQ(h_.engine().GetStats().swaps, 0u);
   EXPECT_EQ(h_.presorted(), presorted + 1);
 }
@@ -341,7 +341,8 @@ TEST_F(SegmentedPresortedChunks, EraseBothExtremaInOneChunk) {
   ASSERT_NO_FATAL_FAILURE(h_.Query());
   EXPECT_EQ(h_.sink().uncollides,
             (Pairs{{Key(3, 0), Key(3, 1)}, {Key(4, 0), Key(4, 1)}, {Key(20, 0), Key(20, 1)}}));
-  EXPECT_EQ(h_.engine().GetStats().chunks, 2u * kGroups);  // 4 + 6 > 4: no merge
+  EXPECT_EQ(h_.engine().GetStats().segmented_sap.value().chunks,
+            2u * kGroups);  // 4 + 6 > 4: no merge
   // A chunk was (a lo, b lo, a hi, b hi, c lo, c hi): a hi, c lo and c hi move once each.
   EXPECT_EQ(h_.engine().GetStats().swaps, 2u * 3u * 3u);
 }
@@ -354,7 +355,7 @@ TEST_F(SegmentedPresortedChunks, ErasingHalfOfNeighbouringChunksMerges) {
     h_.Erase(Key(j, 1));
   }
   ASSERT_NO_FATAL_FAILURE(h_.Query());
-  EXPECT_LT(h_.engine().GetStats().chunks, 2u * kGroups - 2u * 4u);
+  EXPECT_LT(h_.engine().GetStats().segmented_sap.value().chunks, 2u * kGroups - 2u * 4u);
   // Chunks 10..19 gone entirely, with every neighbour touched: 2b must hold again.
   for (int j = 10; j < 20; ++j) h_.Erase(Key(j, 2));
   for (int j = 21; j < 30; j += 2) {
@@ -370,11 +371,11 @@ TEST_F(SegmentedPresortedChunks, EmptiedChunkJoinsSmallNeighbours) {
     h_.Erase(Key(j, 1));
   }
   ASSERT_NO_FATAL_FAILURE(h_.Query());
-  ASSERT_EQ(h_.engine().GetStats().chunks, 2u * kGroups);
+  ASSERT_EQ(h_.engine().GetStats().segmented_sap.value().chunks, 2u * kGroups);
   // Emptying chunk 12 makes the untouched 11 and 13 neighbours with 2 + 2 = cap / 2: they merge.
   for (int i = 0; i < 3; ++i) h_.Erase(Key(12, i));
   ASSERT_NO_FATAL_FAILURE(h_.Query());
-  EXPECT_EQ(h_.engine().GetStats().chunks, 2u * (kGroups - 2));
+  EXPECT_EQ(h_.engine().GetStats().segmented_sap.value().chunks, 2u * (kGroups - 2));
 }
 
 // Long boxes spanning many chunks of axis 0 are inserted (their checkpoints), then a clustered
@@ -428,10 +429,10 @@ TEST(SegmentedPresorted, EmptyEngineFillsAndEmpties) {
     }
     ASSERT_NO_FATAL_FAILURE(h.Query());
     EXPECT_FALSE(h.engine().GetStats().rebuilt);
-    EXPECT_GE(h.engine().GetStats().chunks, 2u * (2 * n / 3));
+    EXPECT_GE(h.engine().GetStats().segmented_sap.value().chunks, 2u * (2 * n / 3));
     for (uint64_t k = 0; k < n; ++k) h.Erase(k);
     ASSERT_NO_FATAL_FAILURE(h.Query());
-    EXPECT_EQ(h.engine().GetStats().chunks, 0u);
+    EXPECT_EQ(h.engine().GetStats().segmented_sap.value().chunks, 0u);
   }
   EXPECT_EQ(h.presorted(), 6u);
 }

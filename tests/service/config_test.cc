@@ -1,6 +1,7 @@
-// The daemon's YAML configuration (service/config.h): defaults, the shipped file, one test per
-// validation rule asserting line, column, key and reason, several errors at once, warnings,
-// relative paths in LoadConfigFile, I/O errors, and the ConfigToYaml round trip.
+// The daemon's YAML configuration (service/admission/config.h): defaults, the shipped file, one
+// test per validation rule asserting line, column, key and reason, several errors at once,
+// warnings, relative paths in LoadConfigFile, I/O errors, and the ConfigToYaml round trip. Why
+// one file of about 800 lines: one test per rule of the configuration, which is one file itself.
 // BP_SOURCE_DIR (the repository root) is defined on the compile line.
 #include "config.h"
 

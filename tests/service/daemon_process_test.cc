@@ -84,7 +84,7 @@ class Process {
 // an event subscriber and a snapshot requester, both matched to the daemon.
 struct Watcher {
   struct {
-    std::unique_ptr<client::Connection> connection;
+    std::unique_ptr<transport::Connection> connection;
     std::unique_ptr<client::EventSubscriber> sub;
     std::unique_ptr<client::SnapshotRequester> requests;
   } dds;
@@ -92,7 +92,7 @@ struct Watcher {
 };
 
 void OpenWatcher(const service::Config& c, Watcher* w) {
-  BP_ASSERT_OK(client::Connection::Open(ClientOptions(c), &w->dds.connection));
+  BP_ASSERT_OK(transport::Connection::Open(ClientOptions(c), &w->dds.connection));
   w->status = std::make_unique<RejectionCollector>(*w->dds.connection);
   BP_ASSERT_OK(client::EventSubscriber::Create(*w->dds.connection, 1000, &w->dds.sub));
   BP_ASSERT_OK(client::SnapshotRequester::Create(*w->dds.connection, &w->dds.requests));
@@ -159,8 +159,8 @@ void SceneThenSignal(int sig) {
   const std::string config = WriteConfig(dir, ConfigText(c));
   Process daemon({"--config", config}, dir + "/log");
 
-  std::unique_ptr<client::Connection> connection;
-  BP_ASSERT_OK(client::Connection::Open(ClientOptions(c), &connection));
+  std::unique_ptr<transport::Connection> connection;
+  BP_ASSERT_OK(transport::Connection::Open(ClientOptions(c), &connection));
   EventCollector events(*connection);
   RejectionCollector status(*connection);
   BP_ASSERT_OK(events.subscriber().WaitForDaemon(20s));
@@ -183,7 +183,7 @@ void SceneThenSignal(int sig) {
     oracle.Apply(9, ops);
     oracle.Query(&unc, &col);
     wire::UpdateBatch batch;
-    client::FillSceneFrame(ops, 3, &batch);
+    tools::FillSceneFrame(ops, 3, &batch);
     batch.set_frame(frame);
     // The last frame is left open: the signal must finish it.
     batch.set_end_of_frame(frame < 10);
@@ -273,7 +273,7 @@ TEST(DaemonProcess, AKilledDaemonIsReplacedAndRestatingProducersRestoreTheExactS
     oracle.Apply(4, ops);
     oracle.Query(&unc, &col);
     wire::UpdateBatch batch;
-    client::FillSceneFrame(ops, 3, &batch);
+    tools::FillSceneFrame(ops, 3, &batch);
     batch.set_frame(frame);
     batch.set_end_of_frame(true);
     // A reliable writer waits for the killed daemon's reader until Cyclone's participant

@@ -1,5 +1,5 @@
 // Recording files: round trip, clean end, truncation and foreign files as DataLoss.
-#include "bp/wire/recording.h"
+#include "bp/transport/recording.h"
 
 #include <cstdio>
 #include <filesystem>

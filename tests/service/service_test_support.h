@@ -22,10 +22,11 @@
 
 #include "bp/brute_force.h"
 #include "bp/client/batch_builder.h"
-#include "bp/client/connection.h"
 #include "bp/client/overlap_view.h"
 #include "bp/client/subscriber.h"
 #include "bp/client/update_publisher.h"
+#include "bp/tools/scene_frame.h"
+#include "bp/transport/connection.h"
 
 namespace bp::test {
 
@@ -60,10 +61,10 @@ inline service::Config TestConfig(uint32_t domain) {
   return config;
 }
 
-inline client::ConnectionOptions ClientOptions(const service::Config& config) {
-  client::ConnectionOptions options;
+inline transport::ConnectionOptions ClientOptions(const service::Config& config) {
+  transport::ConnectionOptions options;
   options.domain = config.dds.domain;
-  EXPECT_TRUE(client::ReadTextFile(config.dds.cyclone_config, &options.cyclone_xml).ok());
+  EXPECT_TRUE(transport::ReadTextFile(config.dds.cyclone_config, &options.cyclone_xml).ok());
   options.partition = config.dds.partition;
   options.topics = {config.dds.topics.updates, config.dds.topics.events, config.dds.topics.status};
   return options;
@@ -81,7 +82,7 @@ struct FrameEvents {
 /// Collects EventBatch parts into frames.
 class EventCollector {
  public:
-  explicit EventCollector(client::Connection& connection) {
+  explicit EventCollector(transport::Connection& connection) {
     EXPECT_TRUE(client::EventSubscriber::Create(connection, 1000, &sub_).ok());
   }
   client::EventSubscriber& subscriber() { return *sub_; }
@@ -147,7 +148,7 @@ class EventCollector {
 /// Collects rejections from status reports.
 class RejectionCollector {
  public:
-  explicit RejectionCollector(client::Connection& connection) {
+  explicit RejectionCollector(transport::Connection& connection) {
     EXPECT_TRUE(client::StatusSubscriber::Create(connection, 1000, &sub_).ok());
   }
   client::StatusSubscriber& subscriber() { return *sub_; }

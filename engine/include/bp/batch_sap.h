@@ -46,7 +46,7 @@
 #include "bp/box.h"
 #include "bp/broadphase.h"
 #include "bp/detail/assert.h"
-#include "bp/detail/keyed_engine.h"
+#include "bp/detail/front_end.h"
 #include "bp/detail/pair_tracker.h"
 #include "bp/detail/sweep.h"
 
@@ -140,7 +140,6 @@ class BatchSapCore {
     out->overlap_tests = tests_;
     out->global_sort = global_;
     out->rebuilt = false;
-    out->chunks = 0;
   }
 
   Status Validate() const;
@@ -462,6 +461,6 @@ Status BatchSapCore<K, T>::Validate() const {
 
 /// Sweep and prune with batch insertion and removal, behind the common interface.
 template <int K, Coordinate T, class Key = uint64_t>
-using BatchSap = detail::KeyedEngine<detail::BatchSapCore<K, T>, Key>;
+using BatchSap = detail::FrontEnd<detail::BatchSapCore<K, T>, Key>;
 
 }  // namespace bp

@@ -20,6 +20,7 @@
 #include <cstddef>
 #include <cstdint>
 #include <functional>
+#include <optional>
 #include <span>
 #include <string>
 
@@ -40,7 +41,29 @@ class EventSink {
   virtual void Uncollide(const Key& a, const Key& b) = 0;
 };
 
-/// Counters describing the engine and its last Query.
+/// The grid engines' own counters (bp/grid.h), in Stats::grid.
+struct GridStats {
+  size_t cells = 0;          ///< cells in use
+  size_t cells_queried = 0;  ///< cells the last query applied operations to
+  size_t large_objects = 0;  ///< objects kept out of the cells for their size
+  size_t cell_slots = 0;     ///< slots the cells hold, live or free (dense cells only)
+  double cell_size = 0;      ///< the cell edge
+  size_t worker_cells = 0;   ///< cells of the last query applied by the pool's other threads
+  size_t pool_routed = 0;    ///< updates of the last query routed on the pool
+  // Within Stats::core_ms, in milliseconds.
+  double route_ms = 0;  ///< objects routed to their cells (and large ones)
+  double cells_ms = 0;  ///< work grouped by cell, cells applied (on the pool)
+  double fold_ms = 0;   ///< the cells' changes folded into witness counts
+};
+
+/// The segmented interval lists' own counters (bp/segmented_sap.h, and the grid over them), in
+/// Stats::segmented_sap.
+struct SegmentedSapStats {
+  size_t chunks = 0;  ///< chunks over all axes (over all cells, for the grid)
+};
+
+/// Counters describing the engine and its last Query: those every engine has, and each engine
+/// family's own in an optional member that only that family sets.
 struct Stats {
   size_t objects = 0;        ///< live objects after the last query
   size_t overlaps = 0;       ///< overlapping pairs after the last query
@@ -53,25 +76,16 @@ struct Stats {
   size_t overlap_tests = 0;  ///< full box tests of the last query
   bool global_sort = false;  ///< the last query sorted globally (not per moved object)
   bool rebuilt = false;      ///< the last query rebuilt its structures from scratch (bulk load)
-  size_t chunks = 0;         ///< chunks over all axes (segmented lists only)
-  size_t cells = 0;          ///< cells in use (grid only)
-  size_t cells_queried = 0;  ///< cells the last query applied operations to (grid only)
-  size_t large_objects = 0;  ///< objects kept out of the cells for their size (grid only)
-  size_t cell_slots = 0;     ///< slots the cells hold, live or free (grid of dense cells only)
-  double cell_size = 0;      ///< the grid's cell edge (grid only)
-  size_t threads = 1;        ///< threads that may apply the cells (grid only: its pool)
-  size_t worker_cells = 0;   ///< cells of the last query applied by the pool's other threads
-  size_t pool_routed = 0;    ///< updates of the last query routed on the pool (grid only)
+  size_t threads = 1;        ///< threads that may work on a query (a grid's pool; else 1)
   double margin = 0;         ///< the fattened boxes' margin (0: exact boxes)
   size_t fat_skips = 0;      ///< updates of the last query absorbed by a fat box
-  // Wall time of the last query by phase, in milliseconds; 0 where an engine has no such phase.
-  // The client's calls before the query (Insert, Update, Erase) are not in any of them.
+  // Wall time of the last query by phase, in milliseconds. The client's calls before the query
+  // (Insert, Update, Erase) are not in any of them.
   double prepare_ms = 0;  ///< front end: new objects' options set, retired staged calls dropped
   double core_ms = 0;     ///< the core: its structures updated and its changed pairs found
-  double route_ms = 0;    ///< grid, within core_ms: objects routed to their cells (and large ones)
-  double cells_ms = 0;    ///< grid, within core_ms: work grouped by cell, cells applied (pool)
-  double fold_ms = 0;     ///< grid, within core_ms: the cells' changes folded into witness counts
   double events_ms = 0;   ///< front end: changed pairs drained, keyed, sorted and delivered
+  std::optional<GridStats> grid;                   ///< the grid engines' counters
+  std::optional<SegmentedSapStats> segmented_sap;  ///< segmented lists' (SegmentedSap, its grid)
 };
 
 /// One item of Broadphase::UpdateMany: a key and its new box.

@@ -15,7 +15,7 @@
 
 #include "bp/box.h"
 #include "bp/broadphase.h"
-#include "bp/detail/keyed_engine.h"
+#include "bp/detail/front_end.h"
 #include "bp/detail/pair_tracker.h"
 #include "bp/detail/sweep.h"
 
@@ -102,6 +102,6 @@ class BruteForceCore {
 
 /// The brute-force oracle behind the common interface.
 template <int K, Coordinate T, class Key = uint64_t>
-using BruteForce = detail::KeyedEngine<detail::BruteForceCore<K, T>, Key>;
+using BruteForce = detail::FrontEnd<detail::BruteForceCore<K, T>, Key>;
 
 }  // namespace bp

@@ -42,6 +42,10 @@
 //  5. The free list holds exactly the nodes not reachable from the root, each once.
 //  6. adj_[h] holds exactly the live handles whose boxes overlap h's; the tracker's overlap set
 //     equals the overlapping pairs of the live boxes.
+//
+// Why one file of about 700 lines: the nodes, their leaves' lists and the overflow list are one
+// structure that every operation (insert, move, erase, split, root growth) updates together, in
+// one class; its validator is apart (detail/dynamic_octree_validate.h).
 #pragma once
 
 #include <algorithm>
@@ -58,7 +62,7 @@
 #include "bp/box.h"
 #include "bp/broadphase.h"
 #include "bp/detail/assert.h"
-#include "bp/detail/keyed_engine.h"
+#include "bp/detail/front_end.h"
 #include "bp/detail/pair_tracker.h"
 
 namespace bp {
@@ -706,7 +710,7 @@ int DynamicOctreeCore<K, T>::DepthOf(uint32_t h) const {
 
 /// The dynamic octree baseline (paper, section 4) behind the common interface.
 template <int K, Coordinate T, class Key = uint64_t>
-using DynamicOctree = detail::KeyedEngine<detail::DynamicOctreeCore<K, T>, Key>;
+using DynamicOctree = detail::FrontEnd<detail::DynamicOctreeCore<K, T>, Key>;
 
 }  // namespace bp
 

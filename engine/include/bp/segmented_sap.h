@@ -30,6 +30,11 @@
 //     (chunk id << shift | slot) stay below 8 * objects + 2 * capacity: 32 bits suffice.
 //  3. CP(c) equals the recomputation above and every R(c) is empty.
 //  4. The tracker's overlap set equals the overlapping pairs of the live boxes.
+//
+// Why one file of about a thousand lines: the chunked lists, the checkpoint sets and the R sets
+// are one structure, which every operation (insert, erase, move, presorted batch, bulk load)
+// updates under one invariant, in one class; its validator is apart
+// (detail/segmented_sap_validate.h).
 #pragma once
 
 #include <algorithm>
@@ -44,7 +49,7 @@
 #include "bp/broadphase.h"
 #include "bp/detail/assert.h"
 #include "bp/detail/flat_set.h"
-#include "bp/detail/keyed_engine.h"
+#include "bp/detail/front_end.h"
 #include "bp/detail/pair_tracker.h"
 #include "bp/detail/sweep.h"
 
@@ -135,8 +140,8 @@ class SegmentedSapCore {
     out->overlap_tests = tests_;
     out->global_sort = global_;
     out->rebuilt = rebuilt_;
-    out->chunks = 0;
-    for (const Axis& ax : axes_) out->chunks += ax.chunk_count;
+    SegmentedSapStats& detail = out->segmented_sap.emplace();
+    for (const Axis& ax : axes_) detail.chunks += ax.chunk_count;
   }
 
   Status Validate() const;
@@ -1010,6 +1015,6 @@ namespace bp {
 
 /// Sweep and prune over segmented interval lists, behind the common interface.
 template <int K, Coordinate T, class Key = uint64_t>
-using SegmentedSap = detail::KeyedEngine<detail::SegmentedSapCore<K, T>, Key>;
+using SegmentedSap = detail::FrontEnd<detail::SegmentedSapCore<K, T>, Key>;
 
 }  // namespace bp

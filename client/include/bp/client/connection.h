@@ -1,103 +1,17 @@
-// bp::client::Connection: one DDS participant joined to a broadphase deployment (domain,
-// partition, topic names) and the QoS every party uses on each topic.
-//
-// QoS (docs/PROTOCOL.md explains the choice):
-//  - updates: reliable, KEEP_ALL, the daemon's reader bounded to `update_queue` samples. A
-//    producer faster than the daemon blocks in dds_write (back-pressure) for at most
-//    `write_timeout`, then gets DeadlineExceeded: updates are never dropped silently. Writers
-//    offer AUTOMATIC liveliness with a lease (1 s by default), so the daemon learns that a
-//    producer died and, after `producers.lease_s`, erases its objects.
-//  - events: reliable, KEEP_LAST `event_history` at the daemon, KEEP_LAST `depth` at each
-//    subscriber. A slow subscriber loses the oldest batches (it sees a gap in `sequence`)
-//    instead of growing memory or stalling the daemon.
-//  - status: reliable, TRANSIENT_LOCAL, KEEP_LAST 16: a late joiner gets the latest reports.
-//  - requests: reliable, KEEP_LAST (a few at the subscriber, 64 at the daemon): snapshot
-//    requests; one is enough, so losing older ones costs nothing.
-//
-// Thread safety: a Connection may be shared by publishers and subscribers on several threads.
+// The connection the client library's publishers and subscribers take: a participant joined to
+// a deployment, from the transport library (bp/transport/connection.h), named here in the
+// client's namespace for its users.
 #pragma once
 
-#include <array>
-#include <chrono>
-#include <cstdint>
-#include <memory>
-#include <mutex>
-#include <string>
-
-#include "bp/dds/dds.h"
-#include "bp/status.h"
+#include "bp/transport/connection.h"
 
 namespace bp::client {
 
-/// Topic names of one deployment.
-struct TopicNames {
-  std::string updates = "bp_updates";
-  std::string events = "bp_events";
-  std::string status = "bp_status";
-  std::string requests = "bp_requests";
-};
-
-/// Where a deployment lives.
-struct ConnectionOptions {
-  uint32_t domain = 0;      ///< DDS domain id
-  std::string cyclone_xml;  ///< Cyclone configuration text; "" = Cyclone's default
-  std::string partition;    ///< "" = the default partition
-  TopicNames topics;
-};
-
-/// Reads a whole text file (a Cyclone XML configuration, say). NotFound names the path.
-Status ReadTextFile(const std::string& path, std::string* out);
-
-/// The QoS of each topic (see the header comment).
-namespace qos {
-/// Updates topic, writer side (producers). AUTOMATIC liveliness with liveliness_lease: the
-/// daemon notices a producer whose process died about this long after it died.
-void UpdatesWriter(dds_qos_t* qos, std::chrono::milliseconds write_timeout,
-                   std::chrono::milliseconds liveliness_lease = std::chrono::milliseconds(1000));
-/// Updates topic, reader side (the daemon), bounded to queue samples.
-void UpdatesReader(dds_qos_t* qos, int32_t queue);
-/// Events topic, writer side (the daemon).
-void EventsWriter(dds_qos_t* qos, int32_t history, std::chrono::milliseconds write_timeout);
-/// Events topic, reader side (subscribers), keeping the newest depth batches.
-void EventsReader(dds_qos_t* qos, int32_t depth);
-/// Status topic, writer side (the daemon).
-void StatusWriter(dds_qos_t* qos, std::chrono::milliseconds write_timeout);
-/// Status topic, reader side.
-void StatusReader(dds_qos_t* qos, int32_t depth);
-/// Requests topic, writer side (subscribers asking for a snapshot).
-void RequestsWriter(dds_qos_t* qos);
-/// Requests topic, reader side (the daemon).
-void RequestsReader(dds_qos_t* qos);
-}  // namespace qos
-
-/// The four topics of a deployment.
-enum class TopicId { kUpdates, kEvents, kStatus, kRequests };
-
-/// A participant of a deployment; its topics are created on first use. (With DDS Security, a
-/// participant may only create the topics its permissions cover, so each role creates only the
-/// ones it reads or writes.)
-class Connection {
- public:
-  /// Joins the deployment described by options.
-  static Status Open(const ConnectionOptions& options, std::unique_ptr<Connection>* out);
-  dds::Participant& participant() { return *participant_; }
-  const dds::Participant& participant() const { return *participant_; }
-  /// The topic's handle, created on first use; the error names the topic (e.g. "Not Allowed By
-  /// Security" when the permissions do not cover it).
-  Status GetTopic(TopicId id, dds_entity_t* out);
-  /// A writer of topic id with qos.
-  Status CreateWriter(TopicId id, const dds::Qos& qos, dds::Writer* out);
-  /// A reader of topic id with qos (recording its writers' liveliness if given).
-  Status CreateReader(TopicId id, const dds::Qos& qos, dds::Reader* out,
-                      dds::WriterLiveliness* liveliness = nullptr);
-  const ConnectionOptions& options() const { return options_; }
-
- private:
-  Connection() = default;
-  ConnectionOptions options_;
-  std::unique_ptr<dds::Participant> participant_;
-  std::mutex mutex_;                      // guards topics_
-  std::array<dds_entity_t, 4> topics_{};  // 0 until created
-};
+using transport::Connection;
+using transport::ConnectionOptions;
+using transport::ReadTextFile;
+using transport::TopicId;
+using transport::TopicNames;
+namespace qos = transport::qos;
 
 }  // namespace bp::client

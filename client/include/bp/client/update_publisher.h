@@ -38,11 +38,12 @@
 
 #include "bp/client/connection.h"
 #include "bp/status.h"
+#include "bp/transport/clock.h"
 
 namespace bp::client {
 
 /// Current CLOCK_REALTIME in nanoseconds (the clock of every *_time_ns field).
-uint64_t WallClockNs();
+using transport::WallClockNs;
 
 struct PublisherOptions {
   /// Longest a Publish blocks on a daemon that falls behind (then DeadlineExceeded).

@@ -13,7 +13,7 @@
 
 #include "bp/detail/flat_map.h"
 #include "bp/detail/sweep.h"
-#include "bp/grid.h"
+#include "bp/detail/grid_core.h"
 
 namespace bp::detail {
 

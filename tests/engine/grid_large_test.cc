@@ -1,0 +1,79 @@
+// The grid's large-object set (detail/grid_large.h): world-sized boxes, transitions between
+// small and large, an object turning large in the middle of a query. Against brute force.
+#include <cstdint>
+#include <string>
+#include <vector>
+
+#include "grid_test_support.h"
+
+namespace bp::test {
+namespace {
+
+TEST(Grid, LargeObjectsAgainstTheGrid) {
+  GridSegmentedSapOptions options;
+  options.cell_size = 4;
+  options.max_cells_per_object = 8;
+  GridSegmentedSap<3, float> engine(options);
+  Twin<3, float, GridSegmentedSap<3, float>> twin(&engine);
+  std::mt19937_64 rng(5);
+  std::uniform_real_distribution<float> pos(0, 40);
+  for (uint64_t i = 0; i < 400; ++i) twin.Insert(i, CubeAt<3, float>(pos(rng), 1));
+  twin.Insert(1000, CubeAt<3, float>(-1e30f, 2e30f));  // the world
+  for (uint64_t i = 0; i < 10; ++i) twin.Insert(1001 + i, CubeAt<3, float>(pos(rng), 12));
+  twin.Query();
+  EXPECT_EQ(engine.GetStats().grid.value().large_objects, 11u);
+  for (int f = 0; f < 30 && !HasFailure(); ++f) {
+    for (uint64_t i = 0; i < 400; i += 3) twin.Update(i, CubeAt<3, float>(pos(rng), 1));
+    twin.Update(1001 + static_cast<uint64_t>(f % 10), CubeAt<3, float>(pos(rng), 12));
+    if (f % 5 == 0) {
+      // A small object grows into a large one and a large one shrinks into a small one.
+      twin.Update(7, CubeAt<3, float>(pos(rng), 15));
+      twin.Update(1003, CubeAt<3, float>(pos(rng), 1));
+    }
+    if (f % 7 == 0) {
+      twin.Erase(1001);
+      twin.Insert(1001, CubeAt<3, float>(pos(rng), 20));
+    }
+    if (f == 20) twin.Erase(1000);
+    twin.Query();
+  }
+}
+
+// With no large object when a query starts, the cells allocate the local handles of the objects
+// that enter them only when they are applied. An object that turns large in that query ends the
+// deferral, so that its scan of the cells' tables finds the objects that entered them before it
+// in the same query (here: one migrated, one inserted by an erase and re-insert, both under it).
+TEST(Grid, ObjectTurningLargeMidQuerySeesObjectsThatEnteredCellsBefore) {
+  for (unsigned threads : {1u, 2u}) {
+    GridDenseOptions options;
+    options.cell_size = 4;
+    options.max_cells_per_object = 8;  // a unit cube spans 8 cells at most
+    options.threads = threads;
+    GridDense<3, float> engine(options);
+    Twin<3, float, GridDense<3, float>> twin(&engine);
+    for (uint64_t i = 0; i < 8; ++i) {
+      const float x = 40.0f + 6.0f * static_cast<float>(i);
+      twin.Insert(i, CubeAt<3, float>(x, 1));
+    }
+    twin.Query();
+    EXPECT_EQ(engine.GetStats().grid.value().large_objects, 0u);
+    twin.Update(1, CubeAt<3, float>(9.5f, 1));  // migrates into cells nobody held
+    twin.Erase(2);
+    twin.Insert(2, CubeAt<3, float>(13, 1));
+    twin.Update(3, CubeAt<3, float>(0, 30));  // turns large over both
+    twin.Update(4, CubeAt<3, float>(17, 1));  // migrates after it
+    twin.Insert(9, CubeAt<3, float>(21, 1));  // inserted after it
+    twin.Query();
+    EXPECT_EQ(engine.GetStats().grid.value().large_objects, 1u);
+    EXPECT_TRUE(engine.Validate().ok()) << engine.Validate().message();
+    twin.Update(3, CubeAt<3, float>(0, 1));  // small again: the deferral resumes next query
+    twin.Update(1, CubeAt<3, float>(0.5f, 1.5f));
+    twin.Query();
+    twin.Update(5, CubeAt<3, float>(1, 2));
+    twin.Query();
+    EXPECT_TRUE(engine.Validate().ok()) << engine.Validate().message();
+  }
+}
+
+}  // namespace
+}  // namespace bp::test

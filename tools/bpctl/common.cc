@@ -1,0 +1,56 @@
+#include "common.h"
+
+#include <atomic>
+
+#include "engine_host.h"
+
+namespace bp::bpctl {
+namespace {
+std::atomic<bool> stop_requested{false};
+}  // namespace
+
+bool StopRequested() { return stop_requested.load(); }
+void RequestStop() { stop_requested.store(true); }
+void ResetStop() { stop_requested.store(false); }
+
+std::unique_ptr<transport::Connection> Connect(const Common& common) {
+  const auto& dds = common.config.dds;
+  transport::ConnectionOptions options;
+  options.domain = dds.domain;
+  options.partition = dds.partition;
+  options.topics = {dds.topics.updates, dds.topics.events, dds.topics.status, dds.topics.requests};
+  if (!dds.cyclone_config.empty()) {
+    if (Status s = transport::ReadTextFile(dds.cyclone_config, &options.cyclone_xml); !s.ok()) {
+      std::fprintf(stderr, "bpctl: dds.cyclone_config: %s\n", s.ToString().c_str());
+      return nullptr;
+    }
+  }
+  std::unique_ptr<transport::Connection> connection;
+  if (Status s = transport::Connection::Open(options, &connection); !s.ok()) {
+    std::fprintf(stderr, "bpctl: cannot join DDS domain %u: %s\n", dds.domain,
+                 s.ToString().c_str());
+    return nullptr;
+  }
+  return connection;
+}
+
+Status WaitInterruptibly(double timeout_s,
+                         const std::function<Status(std::chrono::milliseconds)>& wait) {
+  const auto start = std::chrono::steady_clock::now();
+  for (;;) {
+    Status s = wait(std::chrono::milliseconds(100));
+    if (s.ok() || s.code() != StatusCode::kDeadlineExceeded) return s;
+    if (StopRequested()) return Status(StatusCode::kDeadlineExceeded, "interrupted");
+    if (SecondsSince(start) >= timeout_s) {
+      return Status(StatusCode::kDeadlineExceeded,
+                    "nothing matched within " + std::to_string(timeout_s) + " s");
+    }
+  }
+}
+
+std::string KeyName(uint64_t key) {
+  return std::to_string(key >> service::kProducerShift) + ":" +
+         std::to_string(key & (service::kLocalIdLimit - 1));
+}
+
+}  // namespace bp::bpctl

@@ -1,0 +1,98 @@
+#include "bp/transport/connection.h"
+
+#include <fstream>
+#include <sstream>
+
+namespace bp::transport {
+namespace {
+dds_duration_t Ms(std::chrono::milliseconds d) { return DDS_MSECS(d.count()); }
+}  // namespace
+
+Status ReadTextFile(const std::string& path, std::string* out) {
+  std::ifstream in(path, std::ios::binary);
+  if (!in) return Status(StatusCode::kNotFound, "cannot open '" + path + "'");
+  std::ostringstream text;
+  text << in.rdbuf();
+  if (in.bad()) return Status(StatusCode::kUnavailable, "cannot read '" + path + "'");
+  *out = text.str();
+  return Status::Ok();
+}
+
+namespace qos {
+void UpdatesWriter(dds_qos_t* qos, std::chrono::milliseconds write_timeout,
+                   std::chrono::milliseconds liveliness_lease) {
+  dds_qset_reliability(qos, DDS_RELIABILITY_RELIABLE, Ms(write_timeout));
+  dds_qset_history(qos, DDS_HISTORY_KEEP_ALL, 0);
+  dds_qset_liveliness(qos, DDS_LIVELINESS_AUTOMATIC, Ms(liveliness_lease));
+}
+void UpdatesReader(dds_qos_t* qos, int32_t queue) {
+  dds_qset_reliability(qos, DDS_RELIABILITY_RELIABLE, DDS_SECS(1));
+  dds_qset_history(qos, DDS_HISTORY_KEEP_ALL, 0);
+  dds_qset_resource_limits(qos, queue, DDS_LENGTH_UNLIMITED, DDS_LENGTH_UNLIMITED);
+}
+void EventsWriter(dds_qos_t* qos, int32_t history, std::chrono::milliseconds write_timeout) {
+  dds_qset_reliability(qos, DDS_RELIABILITY_RELIABLE, Ms(write_timeout));
+  dds_qset_history(qos, DDS_HISTORY_KEEP_LAST, history);
+}
+void EventsReader(dds_qos_t* qos, int32_t depth) {
+  dds_qset_reliability(qos, DDS_RELIABILITY_RELIABLE, DDS_SECS(1));
+  dds_qset_history(qos, DDS_HISTORY_KEEP_LAST, depth);
+}
+void StatusWriter(dds_qos_t* qos, std::chrono::milliseconds write_timeout) {
+  dds_qset_reliability(qos, DDS_RELIABILITY_RELIABLE, Ms(write_timeout));
+  dds_qset_durability(qos, DDS_DURABILITY_TRANSIENT_LOCAL);
+  dds_qset_history(qos, DDS_HISTORY_KEEP_LAST, 16);
+}
+void StatusReader(dds_qos_t* qos, int32_t depth) {
+  dds_qset_reliability(qos, DDS_RELIABILITY_RELIABLE, DDS_SECS(1));
+  dds_qset_durability(qos, DDS_DURABILITY_TRANSIENT_LOCAL);
+  dds_qset_history(qos, DDS_HISTORY_KEEP_LAST, depth);
+}
+void RequestsWriter(dds_qos_t* qos) {
+  dds_qset_reliability(qos, DDS_RELIABILITY_RELIABLE, DDS_MSECS(100));
+  dds_qset_history(qos, DDS_HISTORY_KEEP_LAST, 4);
+}
+void RequestsReader(dds_qos_t* qos) {
+  dds_qset_reliability(qos, DDS_RELIABILITY_RELIABLE, DDS_SECS(1));
+  dds_qset_history(qos, DDS_HISTORY_KEEP_LAST, 64);
+}
+}  // namespace qos
+
+Status Connection::Open(const ConnectionOptions& options, std::unique_ptr<Connection>* out) {
+  std::unique_ptr<Connection> c(new Connection());
+  c->options_ = options;
+  if (Status s = dds::Participant::Create(options.domain, options.cyclone_xml, options.partition,
+                                          &c->participant_);
+      !s.ok()) {
+    return s;
+  }
+  *out = std::move(c);
+  return Status::Ok();
+}
+
+Status Connection::GetTopic(TopicId id, dds_entity_t* out) {
+  const auto index = static_cast<size_t>(id);
+  std::lock_guard<std::mutex> lock(mutex_);
+  if (topics_[index] == 0) {
+    const TopicNames& names = options_.topics;
+    const std::string* name[] = {&names.updates, &names.events, &names.status, &names.requests};
+    if (Status s = participant_->CreateTopic(*name[index], &topics_[index]); !s.ok()) return s;
+  }
+  *out = topics_[index];
+  return Status::Ok();
+}
+
+Status Connection::CreateWriter(TopicId id, const dds::Qos& qos, dds::Writer* out) {
+  dds_entity_t topic = 0;
+  if (Status s = GetTopic(id, &topic); !s.ok()) return s;
+  return dds::Writer::Create(*participant_, topic, qos, out);
+}
+
+Status Connection::CreateReader(TopicId id, const dds::Qos& qos, dds::Reader* out,
+                                dds::WriterLiveliness* liveliness) {
+  dds_entity_t topic = 0;
+  if (Status s = GetTopic(id, &topic); !s.ok()) return s;
+  return dds::Reader::Create(*participant_, topic, qos, out, liveliness);
+}
+
+}  // namespace bp::transport
