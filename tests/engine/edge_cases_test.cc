@@ -236,7 +236,7 @@ TYPED_TEST_SUITE(DynamicOctreeTinyEdge, OctreeTinyEdgeShapes);
       }                                                                                           \
       this->QueryAndCompare(model);                                                               \
       if (this->HasFatalFailure()) return;                                                        \
-      size_t full_chunks = e.GetStats().segmented_sap.value().chunks;                             \
+      size_t full_chunks = e.GetStats().segmented_sap.value_or(SegmentedSapStats{}).chunks;       \
       for (auto it = model.boxes().begin(); it != model.boxes().end();) {                         \
         if (rng() % 10 != 0) {                                                                    \
           ASSERT_TRUE(e.Erase(it->first).ok());                                                   \
