@@ -1,7 +1,8 @@
 // bp::service::detail::YamlReader: a small typed reader over a parsed yaml-cpp node tree, used by
-// the daemon's configuration (service/admission/config.cc). It checks node kinds, unknown and duplicate keys,
-// integer and number syntax and ranges, and choices from a fixed list, and records every problem
-// as one line "<source>:<line>:<column>: <dotted.key>: <reason>" instead of stopping at the first.
+// the daemon's configuration (service/admission/config.cc). It checks node kinds, unknown and
+// duplicate keys, integer and number syntax and ranges, and choices from a fixed list, and
+// records every problem as one line "<source>:<line>:<column>: <dotted.key>: <reason>" instead
+// of stopping at the first.
 // It only reads nodes that yaml-cpp already built; parsing (and catching yaml-cpp's exceptions) is
 // the caller's job.
 //

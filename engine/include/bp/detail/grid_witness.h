@@ -47,17 +47,17 @@ class GridWitness : public GridCellTable<Cell> {
     bool now;
   };
 
-  // Folds every applied cell's changes into the witness counts, then recycles the cells that
-  // emptied, in the order of touched_. A cell's changes wait in the buffer of the thread that
-  // applied it and of each pair's shard of the tracker (ApplyCell). With a pool and enough
-  // changes, each shard is folded by one thread (FoldShard): a pair's witness count and sets
-  // lie in its shard alone. The changes are folded in any order (each thread's buffer whole, one
+  // Folds every applied cell's changes into the witness counts (GridCore::FoldCells then
+  // recycles the cells that emptied). A cell's changes wait in the buffer of the thread that
+  // applied it and of each pair's shard of the tracker (GridCore::ApplyCell). With a pool and
+  // enough changes, each shard is folded by one thread (FoldShard): a pair's witness count and
+  // sets lie in its shard alone. The changes are folded in any order (each thread's buffer whole, one
   // after the other, which is cheaper than merging them in the order of touched_):
   // the events do not depend on it. A cell removes only a pair it held at the last query, which
   // the pair's count includes, so no order takes a count below zero; a pair whose count passes
   // through zero leaves the overlap set and comes back, which the tracker cancels; and the
   // counts and sets end the same. (The layout of the sets' tables may differ, and with it the
-  // order of ForEachOverlap: it never promised one.) A rebuild's recount (see Regrid) folds
+  // order of ForEachOverlap: it never promised one.) A rebuild's recount (GridSizing::Regrid) folds
   // serially. A change's fold (three probes of hash tables) counts as kWitnessWeight routed
   // updates or key look-ups, PoolFor's unit: a few thousand changes a frame fold faster on two
   // threads than on one.
