@@ -30,11 +30,13 @@
 #include <functional>
 #include <memory>
 #include <span>
+#include <string>
 #include <utility>
 #include <vector>
 
 #include "bp/broadphase.h"
 #include "bp/detail/assert.h"
+#include "bp/detail/flat_map.h"
 #include "bp/detail/grid_sizing.h"
 #include "bp/detail/prefetch.h"
 #include "bp/detail/worker_pool.h"
@@ -237,6 +239,18 @@ class GridCore : private GridSizing<Cell> {
   static constexpr size_t kCellRun = 32, kMaxCellRun = 512;
   // How far ahead of the cell being applied its successors' records and arrays are prefetched.
   static constexpr size_t kRecordAhead = 4, kArraysAhead = 2;
+
+  // Validate's parts (detail/grid_validate.h), one per part of the grid, in the order Validate
+  // runs them: live lists the live handles; count gathers each pair's witnesses.
+  static Status Invalid(const std::string& what) {
+    return Status(StatusCode::kInternal, std::string(kName) + ": " + what);
+  }
+  Status ValidateRecords(std::vector<uint32_t>* live) const;
+  Status ValidateNoWorkLeft() const;
+  Status ValidateCellTable(FlatMap<uint64_t, uint32_t>* count) const;
+  Status ValidateLargeSet(const std::vector<uint32_t>& live,
+                          FlatMap<uint64_t, uint32_t>* count) const;
+  Status ValidateWitnessCounts(const FlatMap<uint64_t, uint32_t>& count) const;
 
   // A new cell (GridCellTable::CellAt) gets a work entry if its index is new, and lists the
   // large objects over it.

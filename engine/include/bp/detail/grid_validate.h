@@ -1,8 +1,9 @@
-// GridCore::Validate: every invariant of bp/grid.h recomputed from scratch (object references
-// against their ranges and the cells, cell membership and hash, large-object lists and partner
-// sets, witness counts against the cells' own overlap sets, the overlap set against a sort and
-// sweep). O(n log n + cells x large objects + n x large objects); run after every query when
-// BP_VALIDATE is set.
+// GridCore::Validate: every invariant of the grid's parts recomputed from scratch, one validator
+// per part (the records' references against their ranges and the cells; no routing work left;
+// the cell table's hash, membership and large lists; the large set's partners; the witness
+// counts against the cells' own overlap sets), then the overlap set against a sort and sweep. O(n
+// log n + cells x large objects + n x large objects); run after every query when BP_VALIDATE is
+// set.
 #pragma once
 
 #include <algorithm>
@@ -12,17 +13,32 @@
 #include <vector>
 
 #include "bp/detail/flat_map.h"
-#include "bp/detail/sweep.h"
 #include "bp/detail/grid_core.h"
+#include "bp/detail/sweep.h"
 
 namespace bp::detail {
 
 template <class Cell>
 Status GridCore<Cell>::Validate() const {
-  auto fail = [](const std::string& what) {
-    return Status(StatusCode::kInternal, std::string(kName) + ": " + what);
-  };
   std::vector<uint32_t> live;
+  FlatMap<uint64_t, uint32_t> count;  // per pair, the witnesses the cells and the large set hold
+  if (Status s = ValidateRecords(&live); !s.ok()) return s;
+  if (Status s = ValidateNoWorkLeft(); !s.ok()) return s;
+  if (Status s = ValidateCellTable(&count); !s.ok()) return s;
+  if (Status s = ValidateLargeSet(live, &count); !s.ok()) return s;
+  if (Status s = ValidateWitnessCounts(count); !s.ok()) return s;
+  std::vector<BoxType> boxes(objects_.size());
+  for (uint32_t h = 0; h < objects_.size(); ++h) boxes[h] = objects_[h].box;
+  // The composer's invariant: the tracker's set is the live boxes' overlapping pairs.
+  return CheckOverlapSet(boxes, std::move(live), tracker_, kName);
+}
+
+// The records (grid_objects.h, invariant 1): each live object's cell range, set, references
+// against the cells; the live and large counts. Lists the live handles.
+template <class Cell>
+Status GridCore<Cell>::ValidateRecords(std::vector<uint32_t>* live_out) const {
+  std::vector<uint32_t>& live = *live_out;
+  live.clear();
   size_t large_live = 0;
   for (uint32_t h = 0; h < objects_.size(); ++h) {
     const Object& o = objects_[h];
@@ -30,15 +46,17 @@ Status GridCore<Cell>::Validate() const {
     live.push_back(h);
     CellCoord lo, hi;
     RangeOf(objects_[h].box, &lo, &hi);
-    if (lo != o.lo || hi != o.hi) return fail("object " + std::to_string(h) + ": stale cell range");
+    if (lo != o.lo || hi != o.hi)
+      return Invalid("object " + std::to_string(h) + ": stale cell range");
     bool is_large = CellCount(lo, hi) > options_.max_cells_per_object;
-    if (is_large != (o.large != kNone)) return fail("object " + std::to_string(h) + ": wrong set");
+    if (is_large != (o.large != kNone))
+      return Invalid("object " + std::to_string(h) + ": wrong set");
     if (is_large) {
       ++large_live;
-      if (o.large >= large_.size() || large_[o.large].handle != h) return fail("large index");
+      if (o.large >= large_.size() || large_[o.large].handle != h) return Invalid("large index");
       continue;
     }
-    if (o.nrefs != CellCount(lo, hi)) return fail("object " + std::to_string(h) + ": ref count");
+    if (o.nrefs != CellCount(lo, hi)) return Invalid("object " + std::to_string(h) + ": ref count");
     uint32_t i = 0;
     bool ok = true;
     Space::ForEachCoord(lo, hi, [&](const CellCoord& c) {
@@ -47,13 +65,19 @@ Status GridCore<Cell>::Validate() const {
            cells_[ref.cell]->coord == c && ref.local < cells_[ref.cell]->global.size() &&
            cells_[ref.cell]->global[ref.local] == h;
     });
-    if (!ok) return fail("object " + std::to_string(h) + ": cell refs astray");
+    if (!ok) return Invalid("object " + std::to_string(h) + ": cell refs astray");
   }
-  if (live.size() != live_) return fail("live count differs");
-  if (large_live != large_count_) return fail("large count differs");
+  if (live.size() != live_) return Invalid("live count differs");
+  if (large_live != large_count_) return Invalid("large count differs");
+  return Status::Ok();
+}
+
+// Routing (grid_routing.h, grid_parallel_routing.h): no work left between queries.
+template <class Cell>
+Status GridCore<Cell>::ValidateNoWorkLeft() const {
   if (!touched_.empty() || !changed_large_.empty() || !routed_.empty() || !routed_erases_.empty() ||
       !routed_inserts_.empty()) {
-    return fail("work left after a query");
+    return Invalid("work left after a query");
   }
   for (const Shard& sh : shards_) {
     const auto has_work = [](const auto& by_part) {
@@ -61,16 +85,22 @@ Status GridCore<Cell>::Validate() const {
     };
     if (has_work(sh.routed) || has_work(sh.touched) || !sh.deferred.empty() ||
         std::any_of(sh.counts.begin(), sh.counts.end(), [](uint32_t c) { return c != 0; })) {
-      return fail("routing shard left with work after a query");
+      return Invalid("routing shard left with work after a query");
     }
   }
-  if (cell_work_.size() != cells_.size()) return fail("per-cell work table of the wrong size");
+  if (cell_work_.size() != cells_.size()) return Invalid("per-cell work table of the wrong size");
   if (std::any_of(shard_work_.begin(), shard_work_.end(),
                   [](const ShardWork& w) { return w.count != 0; })) {
-    return fail("shard updates left after a query");
+    return Invalid("shard updates left after a query");
   }
+  return Status::Ok();
+}
 
-  FlatMap<uint64_t, uint32_t> count;
+// The cell table (grid_cells.h) and each cell's core: hash, members, free locals, slots, large
+// lists (grid_large.h, invariant 1), options. Adds each cell's pairs to count.
+template <class Cell>
+Status GridCore<Cell>::ValidateCellTable(FlatMap<uint64_t, uint32_t>* count_out) const {
+  FlatMap<uint64_t, uint32_t>& count = *count_out;
   size_t in_use = 0;
   for (uint32_t idx = 0; idx < cells_.size(); ++idx) {
     const GridCell& c = *cells_[idx];
@@ -78,54 +108,63 @@ Status GridCore<Cell>::Validate() const {
     ++in_use;
     const uint32_t* found = cell_of_.Find(c.key);
     if (c.key != Space::Pack(c.coord) || found == nullptr || *found != idx)
-      return fail("cell hash");
+      return Invalid("cell hash");
     size_t members = 0;
     for (uint32_t g : c.global) members += g != kNone ? 1 : 0;
     if (members != c.members || members != c.core.live() || members == 0) {
-      return fail("cell members differ");
+      return Invalid("cell members differ");
     }
     // The free locals are exactly the unused ones, each once; a dense cell holds a live slot
     // exactly where the table names an object (its compaction moves both together).
     std::vector<bool> free_seen(c.global.size(), false);
     for (uint32_t l : c.free_local) {
       if (l >= c.global.size() || c.global[l] != kNone || free_seen[l]) {
-        return fail("cell's free locals");
+        return Invalid("cell's free locals");
       }
       free_seen[l] = true;
     }
-    if (c.free_local.size() + members != c.global.size()) return fail("cell's free locals");
+    if (c.free_local.size() + members != c.global.size()) return Invalid("cell's free locals");
     if constexpr (requires { c.core.slots(); }) {
       for (uint32_t l = 0; l < c.global.size(); ++l) {
-        if (c.core.holds(l) != (c.global[l] != kNone)) return fail("cell slot and table differ");
+        if (c.core.holds(l) != (c.global[l] != kNone)) return Invalid("cell slot and table differ");
       }
     }
     if (cell_work_[idx].touched || cell_work_[idx].updates != 0 || cell_work_[idx].erases != 0 ||
         cell_work_[idx].inserts != 0) {
-      return fail("cell left with buffered operations");
+      return Invalid("cell left with buffered operations");
     }
     for (uint32_t l = 0; l < large_.size(); ++l) {
       uint32_t lh = large_[l].handle;
       bool covers = lh != kNone && Space::Contains(objects_[lh].lo, objects_[lh].hi, c.coord);
       bool listed = std::count(c.large.begin(), c.large.end(), l) == 1;
       if (covers != listed || std::count(c.large.begin(), c.large.end(), l) > 1) {
-        return fail("cell's large list");
+        return Invalid("cell's large list");
       }
     }
-    if (Status s = c.core.Validate(); !s.ok()) return fail("cell: " + s.message());
+    if (Status s = c.core.Validate(); !s.ok()) return Invalid("cell: " + s.message());
     for (uint32_t local = 0; local < c.global.size(); ++local) {
       uint32_t g = c.global[local];
       if (g != kNone && !(CellPairs(c.core).options(local) == tracker_.options(g)))
-        return fail("a cell's object options differ from the grid's");
+        return Invalid("a cell's object options differ from the grid's");
     }
     CellPairs(c.core).ForEachOverlap([&](uint32_t a, uint32_t b) {
       ++count.FindOrInsert(HandlePair(c.global[a], c.global[b]), 0);
     });
   }
-  if (in_use != cell_of_.size()) return fail("cells in the hash differ from cells in use");
+  if (in_use != cell_of_.size()) return Invalid("cells in the hash differ from cells in use");
+  return Status::Ok();
+}
+
+// The large set (grid_large.h, invariants 2 and 3): partners exact and mutual. Adds each large
+// pair to count once.
+template <class Cell>
+Status GridCore<Cell>::ValidateLargeSet(const std::vector<uint32_t>& live,
+                                        FlatMap<uint64_t, uint32_t>* count_out) const {
+  FlatMap<uint64_t, uint32_t>& count = *count_out;
   for (uint32_t l = 0; l < large_.size(); ++l) {
     const Large& lg = large_[l];
     if (lg.handle == kNone) {
-      if (!lg.partners.empty()) return fail("free large slot with partners");
+      if (!lg.partners.empty()) return Invalid("free large slot with partners");
       continue;
     }
     size_t overlapping = 0;
@@ -133,7 +172,7 @@ Status GridCore<Cell>::Validate() const {
       overlapping += g != lg.handle && Overlaps(objects_[g].box, objects_[lg.handle].box) &&
                      tracker_.Accepts(g, lg.handle);
     }
-    if (overlapping != lg.partners.size()) return fail("large partners differ");
+    if (overlapping != lg.partners.size()) return Invalid("large partners differ");
     bool ok = true;
     lg.partners.ForEach([&](uint32_t x) {
       ok = ok && objects_[x].state == State::kLive &&
@@ -144,8 +183,15 @@ Status GridCore<Cell>::Validate() const {
       }
       ++count.FindOrInsert(HandlePair(x, lg.handle), 0);
     });
-    if (!ok) return fail("large partner not overlapping or not mutual");
+    if (!ok) return Invalid("large partner not overlapping or not mutual");
   }
+  return Status::Ok();
+}
+
+// The witness counts (grid_witness.h): count (the cells' and the large set's) against the
+// tracker's set and extra_.
+template <class Cell>
+Status GridCore<Cell>::ValidateWitnessCounts(const FlatMap<uint64_t, uint32_t>& count) const {
   size_t multi = 0;
   bool ok = true;
   count.ForEach([&](uint64_t p, uint32_t n) {
@@ -157,11 +203,9 @@ Status GridCore<Cell>::Validate() const {
   size_t extras = 0;
   for (const auto& extra : extra_) extras += extra.size();
   if (!ok || count.size() != tracker_.overlaps() || multi != extras) {
-    return fail("witness counts differ from the cells");
+    return Invalid("witness counts differ from the cells");
   }
-  std::vector<BoxType> boxes(objects_.size());
-  for (uint32_t h = 0; h < objects_.size(); ++h) boxes[h] = objects_[h].box;
-  return CheckOverlapSet(boxes, std::move(live), tracker_, kName);
+  return Status::Ok();
 }
 
 }  // namespace bp::detail
