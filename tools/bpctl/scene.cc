@@ -4,8 +4,8 @@
 
 #include "common.h"
 
-#include "bp/tools/scene_frame.h"
 #include "bp/client/update_publisher.h"
+#include "bp/tools/scene_frame.h"
 
 namespace bp::bpctl {
 namespace {

@@ -38,8 +38,8 @@
 
 #include "bp/batch_sap.h"
 #include "bp/dense_cell.h"
-#include "bp/detail/grid_core.h"
 #include "bp/detail/front_end.h"
+#include "bp/detail/grid_core.h"
 #include "bp/grid_options.h"
 #include "bp/segmented_sap.h"
 

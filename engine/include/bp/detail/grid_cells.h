@@ -32,12 +32,6 @@ class GridCellTable : public GridObjects<Cell> {
   using Base = GridObjects<Cell>;
 
  protected:
-  using typename Base::BoxType;
-  using typename Base::CellCoord;
-  using typename Base::CellRef;
-  using typename Base::Coord;
-  using typename Base::Options;
-  using typename Base::Space;
   using Base::CellPairs;
   using Base::kAxes;
   using Base::kLimit;
@@ -45,6 +39,12 @@ class GridCellTable : public GridObjects<Cell> {
   using Base::options_;
   using Base::refs_;
   using Base::tracker_;
+  using typename Base::BoxType;
+  using typename Base::CellCoord;
+  using typename Base::CellRef;
+  using typename Base::Coord;
+  using typename Base::Options;
+  using typename Base::Space;
 
   struct GridCell {
     explicit GridCell(const typename Cell::Options& o) : core(o) {}

@@ -30,13 +30,6 @@ class GridLargeSet : public GridWitness<Cell> {
   using Base = GridWitness<Cell>;
 
  protected:
-  using typename Base::BoxType;
-  using typename Base::CellCoord;
-  using typename Base::GridCell;
-  using typename Base::Object;
-  using typename Base::Options;
-  using typename Base::Space;
-  using typename Base::State;
   using Base::cells_;
   using Base::ForEachExistingCell;
   using Base::grid;
@@ -46,6 +39,13 @@ class GridLargeSet : public GridWitness<Cell> {
   using Base::tests_;
   using Base::tracker_;
   using Base::Witness;
+  using typename Base::BoxType;
+  using typename Base::CellCoord;
+  using typename Base::GridCell;
+  using typename Base::Object;
+  using typename Base::Options;
+  using typename Base::Space;
+  using typename Base::State;
 
   explicit GridLargeSet(const Options& options) : Base(options) {}
 

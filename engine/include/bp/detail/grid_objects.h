@@ -30,8 +30,8 @@
 
 #include "bp/box.h"
 #include "bp/detail/cell_space.h"
-#include "bp/detail/huge_alloc.h"
 #include "bp/detail/front_end_contract.h"
+#include "bp/detail/huge_alloc.h"
 #include "bp/detail/pair_tracker.h"
 #include "bp/detail/stopwatch.h"
 #include "bp/detail/worker_pool.h"

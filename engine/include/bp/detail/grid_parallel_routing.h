@@ -33,23 +33,13 @@ class GridParallelRouting : public GridRouting<Cell> {
   using Base = GridRouting<Cell>;
 
  protected:
-  using typename Base::BoxType;
-  using typename Base::CellCoord;
-  using typename Base::CellRef;
-  using typename Base::CellWork;
-  using typename Base::Coord;
-  using typename Base::Object;
-  using typename Base::Options;
-  using typename Base::Routed;
-  using typename Base::Space;
-  using typename Base::State;
-  using Base::kDim;
-  using Base::kNone;
-  using Base::CellCount;
   using Base::cell_work_;
+  using Base::CellCount;
   using Base::cells_;
   using Base::EraseObjects;
   using Base::InsertObjects;
+  using Base::kDim;
+  using Base::kNone;
   using Base::large_count_;
   using Base::objects_;
   using Base::options_;
@@ -66,6 +56,16 @@ class GridParallelRouting : public GridRouting<Cell> {
   using Base::touched_;
   using Base::UpdateObject;
   using Base::WorkFarFromCache;
+  using typename Base::BoxType;
+  using typename Base::CellCoord;
+  using typename Base::CellRef;
+  using typename Base::CellWork;
+  using typename Base::Coord;
+  using typename Base::Object;
+  using typename Base::Options;
+  using typename Base::Routed;
+  using typename Base::Space;
+  using typename Base::State;
 
   explicit GridParallelRouting(const Options& options) : Base(options) {}
 

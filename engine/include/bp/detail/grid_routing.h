@@ -36,6 +36,9 @@ class GridRouting : public GridLargeSet<Cell> {
   using Base = GridLargeSet<Cell>;
 
  protected:
+  using Base::kAxes;
+  using Base::kDim;
+  using Base::kNone;
   using typename Base::BoxType;
   using typename Base::CellCoord;
   using typename Base::CellRef;
@@ -46,16 +49,13 @@ class GridRouting : public GridLargeSet<Cell> {
   using typename Base::Options;
   using typename Base::Space;
   using typename Base::State;
-  using Base::kAxes;
-  using Base::kDim;
-  using Base::kNone;
   // The records and the cell table.
   using Base::AllocLocal;
   using Base::AllocRefs;
+  using Base::cell_of_;
   using Base::CellAt;
   using Base::CellCount;
   using Base::CellOf;
-  using Base::cell_of_;
   using Base::cells_;
   using Base::ClaimLocal;
   using Base::FirstCellKey;

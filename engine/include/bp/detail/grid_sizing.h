@@ -28,19 +28,10 @@ class GridSizing : public GridParallelRouting<Cell> {
   using Base = GridParallelRouting<Cell>;
 
  protected:
-  using typename Base::BoxType;
-  using typename Base::CellCoord;
-  using typename Base::Coord;
-  using typename Base::Object;
-  using typename Base::Options;
-  using typename Base::State;
-  using Base::kAxes;
-  using Base::kDim;
-  using Base::kNone;
   using Base::BeginRecount;
-  using Base::CellCount;
   using Base::cell_size_;
   using Base::cell_work_;
+  using Base::CellCount;
   using Base::ClearCells;
   using Base::ClearLarge;
   using Base::defer_locals_;
@@ -50,6 +41,9 @@ class GridSizing : public GridParallelRouting<Cell> {
   using Base::grid;
   using Base::InsertLarge;
   using Base::inv_size_;
+  using Base::kAxes;
+  using Base::kDim;
+  using Base::kNone;
   using Base::live_;
   using Base::objects_;
   using Base::options_;
@@ -60,6 +54,12 @@ class GridSizing : public GridParallelRouting<Cell> {
   using Base::RescanChanged;
   using Base::route_ms_;
   using Base::SetCellSize;
+  using typename Base::BoxType;
+  using typename Base::CellCoord;
+  using typename Base::Coord;
+  using typename Base::Object;
+  using typename Base::Options;
+  using typename Base::State;
 
   explicit GridSizing(const Options& options) : Base(options) {}
 

@@ -33,11 +33,11 @@ class GridWitness : public GridCellTable<Cell> {
   using Base = GridCellTable<Cell>;
 
  protected:
-  using typename Base::Options;
+  using Base::pool_;
   using Base::PoolFor;
   using Base::Prefetch;
-  using Base::pool_;
   using Base::tracker_;
+  using typename Base::Options;
 
   explicit GridWitness(const Options& options) : Base(options) {}
 
@@ -51,16 +51,15 @@ class GridWitness : public GridCellTable<Cell> {
   // recycles the cells that emptied). A cell's changes wait in the buffer of the thread that
   // applied it and of each pair's shard of the tracker (GridCore::ApplyCell). With a pool and
   // enough changes, each shard is folded by one thread (FoldShard): a pair's witness count and
-  // sets lie in its shard alone. The changes are folded in any order (each thread's buffer whole, one
-  // after the other, which is cheaper than merging them in the order of touched_):
-  // the events do not depend on it. A cell removes only a pair it held at the last query, which
-  // the pair's count includes, so no order takes a count below zero; a pair whose count passes
-  // through zero leaves the overlap set and comes back, which the tracker cancels; and the
-  // counts and sets end the same. (The layout of the sets' tables may differ, and with it the
-  // order of ForEachOverlap: it never promised one.) A rebuild's recount (GridSizing::Regrid) folds
-  // serially. A change's fold (three probes of hash tables) counts as kWitnessWeight routed
-  // updates or key look-ups, PoolFor's unit: a few thousand changes a frame fold faster on two
-  // threads than on one.
+  // sets lie in its shard alone. The changes are folded in any order (each thread's buffer whole,
+  // one after the other, which is cheaper than merging them in the order of touched_): the events
+  // do not depend on it. A cell removes only a pair it held at the last query, which the pair's
+  // count includes, so no order takes a count below zero; a pair whose count passes through zero
+  // leaves the overlap set and comes back, which the tracker cancels; and the counts and sets end
+  // the same. (The layout of the sets' tables may differ, and with it the order of ForEachOverlap:
+  // it never promised one.) A rebuild's recount (GridSizing::Regrid) folds serially. A change's
+  // fold (three probes of hash tables) counts as kWitnessWeight routed updates or key look-ups,
+  // PoolFor's unit: a few thousand changes a frame fold faster on two threads than on one.
   static constexpr size_t kWitnessWeight = 4;
   void FoldWitnessed() {
     size_t changes = 0;
