@@ -1,7 +1,8 @@
 // The front end's keys, slots and staged calls (detail/front_end_slots.h), through every
 // engine: a changed reinsert (a rekey) reports only real status changes; static pairs and
 // filtered pairs never appear; the query counter (epoch), which dates each slot's pending call,
-// wraps around without losing or inventing a call (exact and with a margin).
+// wraps around without losing or inventing a call (exact and with a margin); and the front
+// end's validator notices a corruption of each of its parts.
 // Replay one seed with BP_TEST_SEED=<seed>.
 #include <algorithm>
 #include <cstdint>
@@ -231,6 +232,35 @@ TEST(FrontEnd, EpochWrapsAroundWithoutLosingACall) {
     SegmentedSap<2, double> wrapped_fat(SegmentedSapOptions(), 1.5);
     SegmentedSap<2, double> plain_fat(SegmentedSapOptions(), 1.5);
     CheckEpochWrap<2, double>(wrapped_fat, plain_fat, false, seed);
+  }
+}
+
+// Each part's validator (detail/front_end_validate.h) notices its own corruption, and names it.
+TEST(FrontEnd, ValidatorNoticesACorruptionOfEachPart) {
+  using Peer = detail::FrontEndTestPeer;
+  const std::pair<Peer::Corruption, std::string_view> cases[] = {
+      {Peer::Corruption::kTombstones, "tombstone"},
+      {Peer::Corruption::kKeyMap, "key"},
+      {Peer::Corruption::kFreeList, "free"},
+      {Peer::Corruption::kFatBoxes, "fat boxes"},
+      {Peer::Corruption::kUndrainedEvent, "changed pairs"}};
+  for (const auto& [what, word] : cases) {
+    SCOPED_TRACE(std::string(word));
+    GridSegmentedSap<3, float> engine(GridSegmentedSapOptions(), 0.25f);
+    for (uint64_t k = 0; k < 6; ++k) {
+      const float x = static_cast<float>(k) * 3;
+      ASSERT_TRUE(engine.Insert(k, Cube<3, float>(x, x + 1)).ok());
+    }
+    RecordingSink<uint64_t> sink;
+    engine.Query(sink);
+    ASSERT_TRUE(engine.Erase(2).ok());
+    ASSERT_TRUE(engine.Update(3, Cube<3, float>(0.5f, 1.5f)).ok());
+    engine.Query(sink);  // a freed handle, a pair
+    ASSERT_TRUE(engine.Validate().ok()) << engine.Validate().ToString();
+    Peer::Corrupt(engine, what);
+    const Status s = engine.Validate();
+    EXPECT_FALSE(s.ok());
+    EXPECT_NE(s.message().find(word), std::string::npos) << s.message();
   }
 }
 

@@ -1,6 +1,6 @@
 // What the front end's tests share: FrontEndTestPeer, white-box access to a front end
-// (detail/front_end.h): the epoch, and UpdateMany's claims run in an order two threads take
-// only by chance; and FrontEndEngines, one engine of each family with a variety of coordinates.
+// (detail/front_end.h): the epoch, UpdateMany's claims run in an order two threads take only by
+// chance, and corruptions of each part that Validate must notice; and FrontEndEngines, one engine of each family with a variety of coordinates.
 #pragma once
 
 #include <algorithm>
@@ -34,6 +34,40 @@ struct FrontEndTestPeer {
       e.ClaimRun(items, base, begin, std::min(items.size(), begin + Engine::kResolveRun));
     }
     return e.EndClaims(items, base, runs, refused);
+  }
+
+  // One corruption per part of the front end, for Validate to notice (see ValidateSlots and
+  // the others, detail/front_end_validate.h): what is broken, and the word its message names.
+  enum class Corruption { kTombstones, kKeyMap, kFreeList, kFatBoxes, kUndrainedEvent };
+  template <class Engine>
+  static void Corrupt(Engine& e, Corruption what) {
+    switch (what) {
+      case Corruption::kTombstones:  // the slots' staged lists
+        ++e.tombstones_;
+        break;
+      case Corruption::kKeyMap:  // a present key no longer mapped
+        for (uint32_t h = 0; h < e.slots_.size(); ++h) {
+          if (e.Present(e.slots_[h])) {
+            e.index_.Erase(e.slots_[h].key, h);
+            return;
+          }
+        }
+        break;
+      case Corruption::kFreeList:  // a live handle on the free list
+        for (uint32_t h = 0; h < e.slots_.size(); ++h) {
+          if (e.LiveOf(e.slots_[h])) {
+            e.free_.push_back(h);
+            return;
+          }
+        }
+        break;
+      case Corruption::kFatBoxes:
+        e.fat_.pop_back();
+        break;
+      case Corruption::kUndrainedEvent:  // a pair changed in the tracker, never drained
+        e.core_.tracker().Add(0, 1);
+        break;
+    }
   }
 };
 }  // namespace bp::detail

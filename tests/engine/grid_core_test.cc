@@ -8,32 +8,6 @@
 
 #include "grid_test_support.h"
 
-namespace bp::detail {
-
-struct GridTestPeer {
-  template <class Core>
-  static void DropLargeListEntry(Core& core) {
-    for (auto& cell : core.cells_) {
-      if (cell->in_use && !cell->large.empty()) {
-        cell->large.pop_back();
-        return;
-      }
-    }
-  }
-  template <class Core>
-  static void AddWitness(Core& core) {
-    bool added = false;
-    core.tracker_.ForEachOverlap([&](uint32_t a, uint32_t b) {
-      if (added) return;
-      const uint64_t p = HandlePair(a, b);
-      ++core.extra_[core.tracker_.ShardOf(p)].FindOrInsert(p, 0);
-      added = true;
-    });
-  }
-};
-
-}  // namespace bp::detail
-
 namespace bp::test {
 namespace {
 

@@ -1,5 +1,6 @@
-// What the grid's white-box tests share: a twin of an engine and brute force that must report
-// the same events on every query, cubes, and a random scene far from or near the origin.
+// What the grid's white-box tests share: GridTestPeer, white-box access to a grid's core
+// (detail/grid_core.h); a twin of an engine and brute force that must report the same events on
+// every query, cubes, and a random scene far from or near the origin.
 #pragma once
 
 #include <algorithm>
@@ -7,6 +8,7 @@
 #include <cstdint>
 #include <limits>
 #include <random>
+#include <span>
 #include <string>
 #include <tuple>
 #include <vector>
@@ -18,6 +20,108 @@
 #include "bp/scene_runner.h"
 #include "bp/segmented_sap.h"
 #include "bp/workload.h"
+
+namespace bp::detail {
+
+// Reaches into a GridCore: runs a query's routing phase alone, reads what it routed, and
+// corrupts the core to prove Validate notices.
+struct GridTestPeer {
+  // Apply's first phase as Apply runs it on one thread (keep in step with GridCore::Apply):
+  // the changes routed, no cell applied yet.
+  template <class Core, class HB>
+  static void Route(Core& core, std::span<const uint32_t> erases, std::span<const HB> updates,
+                    std::span<const HB> inserts) {
+    core.PlaceFirst(inserts);
+    core.defer_locals_ = core.large_count_ == 0;
+    core.EraseObjects(erases);
+    core.RouteUpdates(updates);
+    core.InsertObjects(inserts);
+    core.RescanChanged();
+  }
+  // The rest of Apply, after Route: the cells applied, their changes folded, the size checked.
+  template <class Core>
+  static void ApplyRouted(Core& core, size_t inserted, size_t erased) {
+    core.QueryCells();
+    core.live_ = core.live_ + inserted - erased;
+    core.MaybeResize();
+  }
+  // Groups the routed operations by cell (GroupUpdates), as QueryCells would first; the core
+  // can then only be dropped.
+  template <class Core>
+  static void Group(Core& core) {
+    core.GroupUpdates();
+  }
+
+  // One routed operation of a cell slot: the cell and the object's global handle.
+  using Op = std::pair<uint32_t, uint32_t>;
+  struct Routed {
+    std::vector<Op> updates, erases, inserts;  // in routing order
+    std::vector<uint32_t> touched;             // the cells touched, in order
+  };
+  template <class Core>
+  static Routed RoutedOps(const Core& core) {
+    Routed out;
+    const auto global = [&](uint32_t cell, uint32_t local) { return core.cells_[cell]->global[local]; };
+    for (const auto& r : core.routed_) out.updates.emplace_back(r.cell, global(r.cell, r.update.handle));
+    for (const auto& r : core.routed_erases_) out.erases.emplace_back(r.cell, global(r.cell, r.local));
+    for (size_t k = 0; k < core.routed_inserts_.size(); ++k) {
+      const auto& r = core.routed_inserts_[k];
+      // A deferred insert still carries its global handle (see GridRouting::EnterCell).
+      const bool deferred = core.routed_insert_refs_[k] != Core::kNone;
+      out.inserts.emplace_back(r.cell, deferred ? r.update.handle : global(r.cell, r.update.handle));
+    }
+    out.touched = core.touched_;
+    return out;
+  }
+  // A cell's work entry: its routed updates, erases and inserts.
+  template <class Core>
+  static std::tuple<uint32_t, uint32_t, uint32_t> Work(const Core& core, uint32_t cell) {
+    const auto& w = core.cell_work_[cell];
+    return {w.updates, w.erases, w.inserts};
+  }
+  // After Group: where the cell's run of updates starts in the grouped array, and its entries
+  // as (cell, global handle).
+  template <class Core>
+  static std::vector<Op> GroupedUpdates(const Core& core, uint32_t cell, uint32_t* begin) {
+    const auto& w = core.cell_work_[cell];
+    *begin = w.begin;
+    std::vector<Op> out;
+    for (uint32_t i = w.begin; i < w.begin + w.updates; ++i) {
+      out.emplace_back(cell, core.cells_[cell]->global[core.grouped_[i].handle]);
+    }
+    return out;
+  }
+  // The cells small object h lies in, in row-major order of its cell range.
+  template <class Core>
+  static std::vector<uint32_t> CellsOf(const Core& core, uint32_t h) {
+    const auto& o = core.objects_[h];
+    std::vector<uint32_t> out;
+    for (uint32_t i = 0; i < o.nrefs; ++i) out.push_back(core.refs_[o.refs + i].cell);
+    return out;
+  }
+
+  template <class Core>
+  static void DropLargeListEntry(Core& core) {
+    for (auto& cell : core.cells_) {
+      if (cell->in_use && !cell->large.empty()) {
+        cell->large.pop_back();
+        return;
+      }
+    }
+  }
+  template <class Core>
+  static void AddWitness(Core& core) {
+    bool added = false;
+    core.tracker_.ForEachOverlap([&](uint32_t a, uint32_t b) {
+      if (added) return;
+      const uint64_t p = HandlePair(a, b);
+      ++core.extra_[core.tracker_.ShardOf(p)].FindOrInsert(p, 0);
+      added = true;
+    });
+  }
+};
+
+}  // namespace bp::detail
 
 namespace bp::test {
 

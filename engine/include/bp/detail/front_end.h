@@ -245,6 +245,15 @@ class FrontEnd final : public Broadphase<Core::kDim, typename Core::Coord, Key>,
   using typename Parts::Pending;
   using typename Parts::Slot;
 
+  // Validate's parts (detail/front_end_validate.h), one per part, in the order Validate runs
+  // them: the slots count the present and the dead ones for the key map and the free lists.
+  static Status Invalid(const char* what);
+  Status ValidateSlots(size_t* present, size_t* dead) const;
+  Status ValidateKeyMap(size_t present) const;
+  Status ValidateFreeLists(size_t dead) const;
+  Status ValidateFatBoxes() const;
+  Status ValidateEventsDrained() const;
+
   size_t last_erases_ = 0, last_updates_ = 0, last_inserts_ = 0;  // the last query's batch
   double prepare_ms_ = 0, core_ms_ = 0, events_ms_ = 0;           // the last query's phases (Stats)
 };
