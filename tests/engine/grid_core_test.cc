@@ -1,7 +1,7 @@
 // The grid's composer (detail/grid_core.h): 1, 2 and 4 threads give identical events for every
 // cell type (parallel routing and fold included), the phase times in Stats, dense cells that
 // give back freed slots, and the validator (detail/grid_validate.h) noticing corrupted witness
-// counts and large-object lists.
+// counts and large-object bins.
 #include <cstdint>
 #include <string>
 #include <vector>
@@ -235,7 +235,7 @@ TEST(Grid, ValidatorNoticesCorruption) {
     RecordingSink<uint64_t> sink;
     engine.Query(sink);
     ASSERT_TRUE(engine.Validate().ok());
-    detail::GridTestPeer::DropLargeListEntry(const_cast<SegmentedGridCore&>(engine.core()));
+    detail::GridTestPeer::DropLargeBinEntry(const_cast<SegmentedGridCore&>(engine.core()));
     EXPECT_FALSE(engine.Validate().ok());
   }
   {

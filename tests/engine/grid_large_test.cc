@@ -1,5 +1,6 @@
 // The grid's large-object set (detail/grid_large.h): world-sized boxes, transitions between
-// small and large, an object turning large in the middle of a query. Against brute force.
+// small and large, an object turning large in the middle of a query, small objects leaving the
+// range the bins were laid over and large ones moving with them. Against brute force.
 #include <cstdint>
 #include <string>
 #include <vector>
@@ -73,6 +74,35 @@ TEST(Grid, ObjectTurningLargeMidQuerySeesObjectsThatEnteredCellsBefore) {
     twin.Query();
     EXPECT_TRUE(engine.Validate().ok()) << engine.Validate().message();
   }
+}
+
+// The bins are laid over the cells in use when a large object changes; small objects that
+// march far beyond that range land in the edge bins, and large objects that move along are
+// binned again. Every query against brute force.
+TEST(Grid, LargeObjectsFollowObjectsBeyondTheBins) {
+  GridDenseOptions options;
+  options.cell_size = 2;
+  options.max_cells_per_object = 8;
+  GridDense<3, float> engine(options);
+  Twin<3, float, GridDense<3, float>> twin(&engine);
+  for (uint64_t i = 0; i < 60; ++i) {
+    twin.Insert(i, CubeAt<3, float>(static_cast<float>(i % 20), 1));
+  }
+  twin.Insert(100, CubeAt<3, float>(0, 12));   // large, stays
+  twin.Insert(101, CubeAt<3, float>(-4, 10));  // large, moves with the population
+  twin.Query();
+  EXPECT_EQ(engine.GetStats().grid.value().large_objects, 2u);
+  for (int f = 1; f <= 30 && !::testing::Test::HasFailure(); ++f) {
+    const float shift = 3.0f * static_cast<float>(f);
+    for (uint64_t i = 0; i < 60; ++i) {
+      if (i % 3 != 0 || f % 5 != 0) {  // every fifth frame, a third stays (bins untouched)
+        twin.Update(i, CubeAt<3, float>(static_cast<float>(i % 20) + shift, 1));
+      }
+    }
+    if (f % 5 != 0) twin.Update(101, CubeAt<3, float>(shift - 4, 10));
+    twin.Query();
+  }
+  EXPECT_GT(twin.events(), 100u);
 }
 
 }  // namespace

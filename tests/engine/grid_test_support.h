@@ -100,14 +100,11 @@ struct GridTestPeer {
     return out;
   }
 
+  // Drops the last entry of the large-object bins (detail/grid_large.h).
   template <class Core>
-  static void DropLargeListEntry(Core& core) {
-    for (auto& cell : core.cells_) {
-      if (cell->in_use && !cell->large.empty()) {
-        cell->large.pop_back();
-        return;
-      }
-    }
+  static void DropLargeBinEntry(Core& core) {
+    core.bin_large_.pop_back();
+    --core.bin_begin_.back();
   }
   template <class Core>
   static void AddWitness(Core& core) {

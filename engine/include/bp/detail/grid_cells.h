@@ -53,7 +53,6 @@ class GridCellTable : public GridObjects<Cell> {
     uint64_t key = 0;
     std::vector<uint32_t> global;      // local handle -> global handle (kNone: free)
     std::vector<uint32_t> free_local;  // reusable local handles
-    std::vector<uint32_t> large;       // large objects whose range covers this cell
     uint32_t members = 0;              // live objects as of the cell's last apply
     bool in_use = false;
   };
@@ -141,7 +140,7 @@ class GridCellTable : public GridObjects<Cell> {
   }
 
   // The cell at c, created (or recycled) if absent; the composer is told of a new one
-  // (GridCore::CellCreated: its work entry, the large objects over it).
+  // (GridCore::CellCreated: its work entry).
   uint32_t CellAt(const CellCoord& c) {
     bool inserted = false;
     uint64_t key = Space::Pack(c);

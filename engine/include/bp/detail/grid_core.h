@@ -164,6 +164,11 @@ class GridCore : private GridSizing<Cell> {
   using Base::beside_;
   using Base::beside_ran_;
   using Base::BesideRan;
+  using Base::bin_begin_;
+  using Base::kAxes;
+  using Base::bin_large_;
+  using Base::BinRange;
+  using Base::bins_stale_;
   using Base::cell_of_;
   using Base::cell_size_;
   using Base::cell_work_;
@@ -180,6 +185,7 @@ class GridCore : private GridSizing<Cell> {
   using Base::extra_;
   using Base::fold_ms_;
   using Base::FoldWitnessed;
+  using Base::ForEachBin;
   using Base::FreeCell;
   using Base::global_;
   using Base::grouped_;
@@ -192,7 +198,6 @@ class GridCore : private GridSizing<Cell> {
   using Base::kNone;
   using Base::large_;
   using Base::large_count_;
-  using Base::ListLargeOver;
   using Base::live_;
   using Base::MaybeResize;
   using Base::objects_;
@@ -252,11 +257,9 @@ class GridCore : private GridSizing<Cell> {
                           FlatMap<uint64_t, uint32_t>* count) const;
   Status ValidateWitnessCounts(const FlatMap<uint64_t, uint32_t>& count) const;
 
-  // A new cell (GridCellTable::CellAt) gets a work entry if its index is new, and lists the
-  // large objects over it.
-  void CellCreated(uint32_t idx, bool fresh) {
+  // A new cell (GridCellTable::CellAt) gets a work entry if its index is new.
+  void CellCreated(uint32_t /*idx*/, bool fresh) {
     if (fresh) cell_work_.emplace_back();
-    ListLargeOver(*cells_[idx]);
   }
 
   // Applies every touched cell's buffered operations (in parallel: cells share nothing), then
@@ -394,7 +397,6 @@ class GridCore : private GridSizing<Cell> {
       BP_ASSERT(cell.core.live() == 0);
       cell.global.clear();
       cell.free_local.clear();
-      cell.large.clear();
     } else {
       CompactCell(idx, cell);
     }

@@ -1,23 +1,35 @@
 // bp::detail::GridLargeSet: objects too big for the cells. An object whose box would cover more
-// than max_cells_per_object cells is not copied into cells: it joins the large set, and is
-// registered in the lists of the existing cells its range covers (a cell created later lists
-// the large objects over it: ListLargeOver). A changed small object is tested against the large
-// objects listed in its old and new cells (the candidates); a changed large object is rescanned
-// against the objects of the cells it covers and against the other large objects (Rescan, at
-// the end of the routing). Each large object keeps its witnessed partners; for large pairs both
-// sides hold each other and count once.
+// than max_cells_per_object cells is not copied into cells: it joins the large set. The large
+// objects are listed in bins, a coarse grid of at most kMaxBins bins over the cells in use (each
+// bin a block of 2^bin_shift_ cells per axis; cells beyond the bins' range map to the edge
+// bins): a large object in every bin its cell range touches. A changed small object is tested
+// against the large objects listed in the bins of its old and new cell ranges (the
+// candidates): the bins are few and small, so they stay in the cache where per-cell lists, read
+// from cold cell records, each cost a miss. A changed large object is rescanned against the
+// objects of the cells it covers and against the other large objects (Rescan, at the end of
+// the routing). Each large object keeps its witnessed partners; for large pairs both sides hold
+// each other and count once.
+//
+// Binning is monotone on every axis, so a small object whose cell range overlaps a large
+// object's shares a bin with it whatever the bins' origin and size: the bins are only rebuilt
+// (after the query) when a large object was inserted, moved or erased. In between, a large
+// object changed in the current query is skipped by the candidate tests: its rescan, after the
+// routing, settles all its pairs.
 //
 // Thread safety: none (the large set is touched by the serial routing only: a query with a
 // large object routes serially).
 // Invariants (checked by GridCore::Validate):
-//  1. A cell in use lists exactly the large objects whose range covers it, each once.
+//  1. Between queries, each live large object is listed exactly in the bins its cell range
+//     touches, once each, and the bins list nothing else.
 //  2. A large object's partners are exactly the live objects overlapping it (and accepted by
 //     the filters); large partners hold each other.
 //  3. A large slot that is free (handle kNone) has no partners and is on free_large_.
 #pragma once
 
 #include <algorithm>
+#include <array>
 #include <cstdint>
+#include <limits>
 #include <vector>
 
 #include "bp/detail/flat_set.h"
@@ -32,6 +44,7 @@ class GridLargeSet : public GridWitness<Cell> {
  protected:
   using Base::cells_;
   using Base::ForEachExistingCell;
+  using Base::kAxes;
   using Base::grid;
   using Base::kNone;
   using Base::objects_;
@@ -73,35 +86,19 @@ class GridLargeSet : public GridWitness<Cell> {
     o.hi = hi;
     o.nrefs = 0;
     ++large_count_;
-    ForEachExistingCell(lo, hi, [&](uint32_t idx) { cells_[idx]->large.push_back(l); });
     MarkChanged(l);
   }
 
   void MoveLarge(uint32_t l, const CellCoord& lo, const CellCoord& hi) {
+    grid().EndLocalDeferral();  // its rescan reads the cells' tables
     Object& o = objects_[large_[l].handle];
-    if (lo != o.lo || hi != o.hi) {
-      Unregister(l);
-      o.lo = lo;
-      o.hi = hi;
-      ForEachExistingCell(lo, hi, [&](uint32_t idx) { cells_[idx]->large.push_back(l); });
-    }
+    o.lo = lo;
+    o.hi = hi;
     MarkChanged(l);
-  }
-
-  void Unregister(uint32_t l) {
-    const Object& o = objects_[large_[l].handle];
-    ForEachExistingCell(o.lo, o.hi, [&](uint32_t idx) {
-      std::vector<uint32_t>& list = cells_[idx]->large;
-      auto it = std::find(list.begin(), list.end(), l);
-      BP_ASSERT(it != list.end());
-      *it = list.back();
-      list.pop_back();
-    });
   }
 
   void EraseLarge(uint32_t h) {
     uint32_t l = objects_[h].large;
-    Unregister(l);
     Large& lg = large_[l];
     scratch_.clear();
     lg.partners.ForEach([&](uint32_t x) { scratch_.push_back(x); });
@@ -111,12 +108,16 @@ class GridLargeSet : public GridWitness<Cell> {
     }
     lg.partners.Clear();
     lg.handle = kNone;
+    bins_stale_ = true;
     free_large_.push_back(l);
     objects_[h].large = kNone;
     --large_count_;
   }
 
+  // Marks large object l changed in this query (rescanned after the routing, skipped by the
+  // candidate tests until then), and the bins out of date.
   void MarkChanged(uint32_t l) {
+    bins_stale_ = true;
     if (!large_[l].changed) {
       large_[l].changed = true;
       changed_large_.push_back(l);
@@ -134,36 +135,51 @@ class GridLargeSet : public GridWitness<Cell> {
     if (b != nullptr) std::fill(b->begin(), b->end(), 0);
     *epoch = 1;
   }
-  // The large objects listed in h's current cells, each once.
+  // The large objects listed in the bins of h's current cell range, each once.
   void AddLargeCandidates(uint32_t h) {
     const Object& o = objects_[h];
-    for (uint32_t i = 0; i < o.nrefs; ++i) {
-      for (uint32_t l : cells_[refs_[o.refs + i].cell]->large) {
+    std::array<uint32_t, kAxes> lo, hi;
+    BinRange(o.lo, o.hi, &lo, &hi);
+    ForEachBin(lo, hi, [&](uint32_t bin) {
+      for (uint32_t k = bin_begin_[bin]; k < bin_begin_[bin + 1]; ++k) {
+        const uint32_t l = bin_large_[k];
         if (large_stamp_[l] != large_epoch_) {
           large_stamp_[l] = large_epoch_;
           candidates_.push_back(l);
         }
       }
-    }
+    });
   }
   // Brings the pairs of small object h with the candidates up to date (h dead: removes them).
-  // `before` is h's box at the last query (nullptr: h was in no partner set), which tells, for a
-  // candidate unchanged this query, whether h is its partner without a look-up; a candidate
-  // that changed is rescanned afterwards, which settles its pairs anyway.
+  // `before` is h's box at the last query (nullptr: h was in no partner set), which tells
+  // whether h is a candidate's partner without a look-up. A candidate changed in this query
+  // (or erased: its slot is free or changed) is skipped: its rescan settles its pairs.
+  // The tests are branch-free: whether a moved object overlaps a large one then and now is
+  // unpredictable per axis, and a short-circuit test mispredicted often enough to take most of
+  // a frame's routing; that the two agree is predictable.
   void TestLargeCandidates(uint32_t h, const BoxType* before) {
-    const bool alive = objects_[h].state == State::kLive;
+    const uint32_t alive = objects_[h].state == State::kLive ? 1u : 0u;
+    const BoxType& box = objects_[h].box;
+    const BoxType& then = before != nullptr ? *before : box;
+    const uint32_t was = before != nullptr ? 1u : 0u;
     for (uint32_t l : candidates_) {
       Large& lg = large_[l];
-      if (!tracker_.Accepts(h, lg.handle)) continue;  // never a partner
+      if (lg.changed || lg.handle == kNone || !tracker_.Accepts(h, lg.handle)) continue;
       const BoxType& lbox = objects_[lg.handle].box;
       ++tests_;
-      bool now = alive && Overlaps(objects_[h].box, lbox);
-      if (!lg.changed) {
-        bool had = before != nullptr && Overlaps(*before, lbox);
-        if (had == now) continue;
-      }
-      if (now ? lg.partners.Insert(h) : lg.partners.Erase(h)) Witness(h, lg.handle, now);
+      const uint32_t now = alive & OverlapsBranchFree(box, lbox);
+      const uint32_t had = was & OverlapsBranchFree(then, lbox);
+      if (had == now) continue;
+      if (now != 0 ? lg.partners.Insert(h) : lg.partners.Erase(h)) Witness(h, lg.handle, now != 0);
     }
+  }
+  // Overlaps (closed intervals) on every axis without branches (valid boxes: no NaN).
+  static uint32_t OverlapsBranchFree(const BoxType& a, const BoxType& b) {
+    uint32_t ok = 1;
+    for (size_t i = 0; i < kAxes; ++i) {
+      ok &= static_cast<uint32_t>(a.lo[i] <= b.hi[i]) & static_cast<uint32_t>(b.lo[i] <= a.hi[i]);
+    }
+    return ok;
   }
 
   // Sets a changed large object's partners to exactly the live objects overlapping it: the small
@@ -218,21 +234,104 @@ class GridLargeSet : public GridWitness<Cell> {
     }
   }
 
-  // Lists in a new cell the large objects whose range covers it (see CellAt).
-  void ListLargeOver(GridCell& cell) {
-    for (uint32_t l = 0; l < large_.size(); ++l) {
-      uint32_t lh = large_[l].handle;
-      if (lh != kNone && Space::Contains(objects_[lh].lo, objects_[lh].hi, cell.coord))
-        cell.large.push_back(l);
-    }
-  }
-  // Rescans the large objects that changed in this query (after its routing).
+  // Rescans the large objects that changed in this query (after its routing), then bins them
+  // again.
   void RescanChanged() {
     for (uint32_t l : changed_large_) {
       large_[l].changed = false;
       if (large_[l].handle != kNone) Rescan(l);
     }
     changed_large_.clear();
+    if (bins_stale_) RebuildBins();
+  }
+
+  // ---- the bins ----
+
+  // The bins of a cell range, per axis: clamp((c - bin_origin_) >> bin_shift_, 0, bins - 1),
+  // monotone in c. Without bins (no large object): the empty range [1, 0].
+  void BinRange(const CellCoord& lo, const CellCoord& hi, std::array<uint32_t, kAxes>* blo,
+                std::array<uint32_t, kAxes>* bhi) const {
+    if (bin_begin_.size() < 2) {
+      blo->fill(1);
+      bhi->fill(0);
+      return;
+    }
+    for (size_t a = 0; a < kAxes; ++a) {
+      (*blo)[a] = BinOf(lo[a], a);
+      (*bhi)[a] = BinOf(hi[a], a);
+    }
+  }
+  uint32_t BinOf(int64_t c, size_t a) const {
+    const int64_t b = (c - bin_origin_[a]) >> bin_shift_;
+    return static_cast<uint32_t>(std::clamp<int64_t>(b, 0, int64_t{bins_[a]} - 1));
+  }
+  // Calls f(bin index) for each bin of a bin range, row-major.
+  template <class F>
+  void ForEachBin(const std::array<uint32_t, kAxes>& lo, const std::array<uint32_t, kAxes>& hi,
+                  F&& f) const {
+    if (lo[0] > hi[0]) return;
+    std::array<uint32_t, kAxes> at = lo;
+    while (true) {
+      uint32_t index = 0;
+      for (size_t a = kAxes; a-- > 0;) index = index * bins_[a] + at[a];
+      f(index);
+      size_t a = 0;
+      while (a < kAxes && at[a] == hi[a]) {
+        at[a] = lo[a];
+        ++a;
+      }
+      if (a == kAxes) return;
+      ++at[a];
+    }
+  }
+  // Lays the bins over the cells in use (at most kMaxBins: 2^bin_shift_ cells per bin and axis,
+  // the smallest power of two that fits) and lists every live large object in the bins its cell
+  // range touches. O(cells + the bins the large objects touch).
+  void RebuildBins() {
+    bins_stale_ = false;
+    bin_begin_.clear();
+    bin_large_.clear();
+    if (large_count_ == 0) return;
+    CellCoord lo, hi;
+    lo.fill(std::numeric_limits<typename Space::Scalar>::max());
+    hi.fill(std::numeric_limits<typename Space::Scalar>::lowest());
+    for (const auto& cell : cells_) {
+      if (!cell->in_use) continue;
+      for (size_t a = 0; a < kAxes; ++a) {
+        lo[a] = std::min(lo[a], cell->coord[a]);
+        hi[a] = std::max(hi[a], cell->coord[a]);
+      }
+    }
+    if (lo[0] > hi[0]) lo = hi = CellCoord{};  // no cell in use: one bin per axis will do
+    uint64_t span = 1;
+    for (size_t a = 0; a < kAxes; ++a) {
+      span = std::max(span, static_cast<uint64_t>(int64_t{hi[a]} - lo[a]) + 1);
+    }
+    bin_shift_ = 0;
+    while ((((span - 1) >> bin_shift_) + 1) > kBinsPerAxis) ++bin_shift_;
+    size_t total = 1;
+    for (size_t a = 0; a < kAxes; ++a) {
+      bin_origin_[a] = lo[a];
+      bins_[a] = static_cast<uint32_t>(((static_cast<uint64_t>(int64_t{hi[a]} - lo[a])) >> bin_shift_) + 1);
+      total *= bins_[a];
+    }
+    // Counting sort of (bin, large) entries into bin_begin_ / bin_large_.
+    bin_begin_.assign(total + 1, 0);
+    std::array<uint32_t, kAxes> blo, bhi;
+    for (const Large& lg : large_) {
+      if (lg.handle == kNone) continue;
+      BinRange(objects_[lg.handle].lo, objects_[lg.handle].hi, &blo, &bhi);
+      ForEachBin(blo, bhi, [&](uint32_t bin) { ++bin_begin_[bin + 1]; });
+    }
+    for (size_t b = 0; b < total; ++b) bin_begin_[b + 1] += bin_begin_[b];
+    bin_large_.resize(bin_begin_[total]);
+    std::vector<uint32_t>& cursor = scratch_;
+    cursor.assign(bin_begin_.begin(), bin_begin_.end() - 1);
+    for (uint32_t l = 0; l < large_.size(); ++l) {
+      if (large_[l].handle == kNone) continue;
+      BinRange(objects_[large_[l].handle].lo, objects_[large_[l].handle].hi, &blo, &bhi);
+      ForEachBin(blo, bhi, [&](uint32_t bin) { bin_large_[cursor[bin]++] = l; });
+    }
   }
   // Drops the whole set (a rebuild: see GridSizing::Regrid).
   void ClearLarge() {
@@ -241,9 +340,23 @@ class GridLargeSet : public GridWitness<Cell> {
     free_large_.clear();
     changed_large_.clear();
     large_count_ = 0;
+    bin_begin_.clear();
+    bin_large_.clear();
+    bins_stale_ = false;
   }
 
+  // At most this many bins (per axis: kBinsPerAxis, the largest integer whose K-th power fits).
+  static constexpr size_t kMaxBins = 4096;
+  static constexpr uint32_t kBinsPerAxis = kAxes == 1 ? 4096 : kAxes == 2 ? 64 : kAxes == 3 ? 16 : 8;
+
   std::vector<Large> large_;
+  // The bins (invariant 1): bin b lists bin_large_[bin_begin_[b], bin_begin_[b + 1]); bins_[a]
+  // bins on axis a from cell bin_origin_[a], 2^bin_shift_ cells each. No bins: bin_begin_ empty.
+  std::vector<uint32_t> bin_begin_, bin_large_;
+  std::array<uint32_t, kAxes> bins_{};
+  std::array<int64_t, kAxes> bin_origin_{};
+  uint32_t bin_shift_ = 0;
+  bool bins_stale_ = false;
   std::vector<uint32_t> free_large_;
   std::vector<uint32_t> changed_large_;
   size_t large_count_ = 0;

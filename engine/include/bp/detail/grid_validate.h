@@ -7,6 +7,7 @@
 #pragma once
 
 #include <algorithm>
+#include <array>
 #include <cstdint>
 #include <string>
 #include <utility>
@@ -96,8 +97,8 @@ Status GridCore<Cell>::ValidateNoWorkLeft() const {
   return Status::Ok();
 }
 
-// The cell table (grid_cells.h) and each cell's core: hash, members, free locals, slots, large
-// lists (grid_large.h, invariant 1), options. Adds each cell's pairs to count.
+// The cell table (grid_cells.h) and each cell's core: hash, members, free locals, slots,
+// options. Adds each cell's pairs to count.
 template <class Cell>
 Status GridCore<Cell>::ValidateCellTable(FlatMap<uint64_t, uint32_t>* count_out) const {
   FlatMap<uint64_t, uint32_t>& count = *count_out;
@@ -133,14 +134,6 @@ Status GridCore<Cell>::ValidateCellTable(FlatMap<uint64_t, uint32_t>* count_out)
         cell_work_[idx].inserts != 0) {
       return Invalid("cell left with buffered operations");
     }
-    for (uint32_t l = 0; l < large_.size(); ++l) {
-      uint32_t lh = large_[l].handle;
-      bool covers = lh != kNone && Space::Contains(objects_[lh].lo, objects_[lh].hi, c.coord);
-      bool listed = std::count(c.large.begin(), c.large.end(), l) == 1;
-      if (covers != listed || std::count(c.large.begin(), c.large.end(), l) > 1) {
-        return Invalid("cell's large list");
-      }
-    }
     if (Status s = c.core.Validate(); !s.ok()) return Invalid("cell: " + s.message());
     for (uint32_t local = 0; local < c.global.size(); ++local) {
       uint32_t g = c.global[local];
@@ -155,12 +148,33 @@ Status GridCore<Cell>::ValidateCellTable(FlatMap<uint64_t, uint32_t>* count_out)
   return Status::Ok();
 }
 
-// The large set (grid_large.h, invariants 2 and 3): partners exact and mutual. Adds each large
-// pair to count once.
+// The large set (grid_large.h, invariants 1 to 3): the bins, partners exact and mutual. Adds
+// each large pair to count once.
 template <class Cell>
 Status GridCore<Cell>::ValidateLargeSet(const std::vector<uint32_t>& live,
                                         FlatMap<uint64_t, uint32_t>* count_out) const {
   FlatMap<uint64_t, uint32_t>& count = *count_out;
+  if (bins_stale_) return Invalid("large bins out of date after a query");
+  if (large_count_ != 0 && bin_begin_.size() < 2) return Invalid("large objects without bins");
+  if (!bin_begin_.empty()) {
+    // Each live large object once in every bin its range touches, and nothing else listed.
+    std::vector<uint32_t> listed(bin_large_.size(), 0);
+    std::array<uint32_t, kAxes> blo, bhi;
+    size_t expected = 0;
+    bool ok = bin_begin_.back() == bin_large_.size();
+    for (size_t b = 0; b + 1 < bin_begin_.size() && ok; ++b) ok = bin_begin_[b] <= bin_begin_[b + 1];
+    for (uint32_t l = 0; l < large_.size() && ok; ++l) {
+      if (large_[l].handle == kNone) continue;
+      BinRange(objects_[large_[l].handle].lo, objects_[large_[l].handle].hi, &blo, &bhi);
+      ForEachBin(blo, bhi, [&](uint32_t bin) {
+        ++expected;
+        const auto first = bin_large_.begin() + bin_begin_[bin];
+        const auto last = bin_large_.begin() + bin_begin_[bin + 1];
+        ok = ok && std::count(first, last, l) == 1;
+      });
+    }
+    if (!ok || expected != bin_large_.size()) return Invalid("large bins differ from the set");
+  }
   for (uint32_t l = 0; l < large_.size(); ++l) {
     const Large& lg = large_[l];
     if (lg.handle == kNone) {
