@@ -67,6 +67,7 @@ struct Config {
   bool world_box = false;         // one static box covering the whole scene
   double margin = 0;              // fattened boxes' margin in cube widths (0: exact)
   bool static_rest = false;       // resting slots' objects inserted static
+  uint32_t unpaired_every = 0;    // every n-th object pairs with nothing (mask 0)
   bool error_vs_double = false;   // float engine; errors counted against a double engine
   bool compare_exact = false;     // count errors against an exact engine even at margin 0
   std::string shape = "uniform";  // the scene's layout (bp::workload::Shape)
@@ -277,7 +278,7 @@ Result RunTyped(const SceneParams& params, int frames, const Config& cfg,
   for (int rep = 0; rep < cfg.repeats; ++rep) {
     auto engine = MakeEngine<K, T>(cfg, static_cast<T>(cfg.margin));
     AddStaticBoxes<K, T>(cfg, params, engine.get());
-    bp::workload::SceneRunner<K, T> runner(*engine, params, cfg.static_rest);
+    bp::workload::SceneRunner<K, T> runner(*engine, params, cfg.static_rest, cfg.unpaired_every);
     // With a margin, the first run also drives an exact engine through the same scene, untimed,
     // and compares the overlap sets after every frame.
     std::unique_ptr<bp::Broadphase<K, TE>> exact;
@@ -286,7 +287,8 @@ Result RunTyped(const SceneParams& params, int frames, const Config& cfg,
       exact = MakeEngine<K, TE>(cfg, TE{});
       AddStaticBoxes<K, TE>(cfg, params, exact.get());
       exact_runner =
-          std::make_unique<bp::workload::SceneRunner<K, TE>>(*exact, params, cfg.static_rest);
+          std::make_unique<bp::workload::SceneRunner<K, TE>>(*exact, params, cfg.static_rest,
+                                                             cfg.unpaired_every);
       exact_runner->Build();
     }
     double build = runner.Build();
@@ -343,7 +345,8 @@ SceneParams Shaped(SceneParams p, const Config& cfg) {
 
 // The golden values hold only for WORKLOADS.md's own scene.
 bool GoldenScene(const Config& cfg) {
-  return cfg.margin == 0 && !cfg.static_rest && cfg.shape == "uniform" && cfg.offset == 0 &&
+  return cfg.margin == 0 && !cfg.static_rest && cfg.unpaired_every == 0 &&
+         cfg.shape == "uniform" && cfg.offset == 0 &&
          !cfg.error_vs_double && !cfg.world_box && cfg.big_boxes == 0;
 }
 
@@ -406,6 +409,7 @@ void PrintJson(const std::string& scenario, const SceneParams& p, int frames, co
   }
   if (!cfg.variant.empty()) o << ",\"variant\":\"" << cfg.variant << "\"";
   if (cfg.static_rest) o << ",\"static_rest\":true";
+  if (cfg.unpaired_every != 0) o << ",\"unpaired_every\":" << cfg.unpaired_every;
   if (cfg.shape != "uniform") o << ",\"shape\":\"" << cfg.shape << "\"";
   if (cfg.offset != 0) o << ",\"offset\":" << cfg.offset;
   if (cfg.margin > 0 || cfg.error_vs_double || cfg.compare_exact) {
@@ -742,6 +746,9 @@ int main(int argc, char** argv) {
   app.add_flag("--static-rest", cfg.static_rest,
                "insert the objects of resting slots as static (no static-static pairs; the golden "
                "hashes no longer apply)");
+  app.add_option("--unpaired-every", cfg.unpaired_every,
+                 "give every N-th object (by id) mask 0, a category that pairs with nothing (2: "
+                 "half of them; the golden hashes no longer apply)");
   app.add_option(
          "--shape", cfg.shape,
          "the scene's layout: uniform (WORKLOADS.md's), clustered (90% of the objects in 1% "
@@ -842,11 +849,12 @@ int main(int argc, char** argv) {
   std::vector<const bp::bench::PeerInfo*> peers;
   if (!SelectPeers(peer_list, &peers)) return 2;
   // Peers get the scene's own boxes, exact: refuse what would make our line a different scene.
-  if (!peers.empty() && (cfg.world_box || cfg.big_boxes != 0 || cfg.static_rest || cfg.margin > 0 ||
-                         cfg.error_vs_double)) {
+  if (!peers.empty() && (cfg.world_box || cfg.big_boxes != 0 || cfg.static_rest ||
+                         cfg.unpaired_every != 0 || cfg.margin > 0 || cfg.error_vs_double)) {
     std::fprintf(stderr,
                  "bpbench: --peers compares exact sets of the plain scene: not with --world-box, "
-                 "--big-boxes, --static-rest, --margin or --error-vs-double (a --margin-sweep "
+                 "--big-boxes, --static-rest, --unpaired-every, --margin or --error-vs-double (a "
+                 "--margin-sweep "
                  "compares at its 0 point)\n");
     return 2;
   }

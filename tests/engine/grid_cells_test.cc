@@ -1,6 +1,7 @@
 // The grid's cell table (detail/grid_cells.h): coordinates far from the origin and cell indices
 // that would overflow (clamped to the edge cells), one axis, integer extremes, cells created
-// ahead of a moving population and recycled behind it. Every scene runs against brute force.
+// ahead of a moving population and recycled behind it, objects that pair with nothing kept out of
+// the cells. Every scene runs against brute force.
 #include <cstdint>
 #include <string>
 #include <vector>
@@ -99,6 +100,64 @@ TEST(Grid, CellsAreCreatedAndRecycled) {
   twin.Query();
   EXPECT_EQ(engine.GetStats().grid.value().cells, 0u);
   EXPECT_EQ(engine.Size(), 0u);
+}
+
+// An object whose options accept no object (mask 0 or category 0) lives in its record only: a
+// grid of nothing else has no cell, and a mixed one reports what brute force does while such
+// objects move, leave, come back paired (a rekey) and paired ones turn unpaired.
+TEST(Grid, ObjectsThatPairWithNothingStayOutOfTheCells) {
+  const ObjectOptions unpaired{.mask = 0}, no_category{.category = 0};
+  GridDense<3, float> alone;
+  ASSERT_TRUE(alone.Insert(1, CubeAt<3, float>(0, 1), unpaired).ok());
+  ASSERT_TRUE(alone.Insert(2, CubeAt<3, float>(0.5f, 1), no_category).ok());
+  RecordingSink<uint64_t> sink;
+  alone.Query(sink);
+  EXPECT_TRUE(sink.collides.empty());
+  EXPECT_EQ(alone.GetStats().grid.value().cells, 0u);
+  EXPECT_EQ(alone.Size(), 2u);
+
+  GridDense<3, float> engine;
+  BruteForce<3, float> oracle;
+  std::mt19937_64 rng(21);
+  const auto box = [&] {
+    return CubeAt<3, float>(std::uniform_real_distribution<float>(0, 30)(rng), 2);
+  };
+  const auto options = [&](uint64_t k) { return k % 3 == 0 ? unpaired : ObjectOptions{}; };
+  for (uint64_t k = 0; k < 300; ++k) {
+    const Box<3, float> b = box();
+    ASSERT_TRUE(engine.Insert(k, b, options(k)).ok());
+    ASSERT_TRUE(oracle.Insert(k, b, options(k)).ok());
+  }
+  size_t events = 0;
+  for (int f = 0; f < 25; ++f) {
+    RecordingSink<uint64_t> got, want;
+    engine.Query(got);
+    oracle.Query(want);
+    ASSERT_EQ(got.collides, want.collides) << "frame " << f;
+    ASSERT_EQ(got.uncollides, want.uncollides) << "frame " << f;
+    events += got.collides.size() + got.uncollides.size();
+    for (uint64_t k = 0; k < 300; ++k) {
+      const Box<3, float> b = box();
+      switch (rng() % 8) {
+        case 0: {  // back with the other options: paired turns unpaired, or the other way
+          const ObjectOptions o = (k + static_cast<uint64_t>(f)) % 2 == 0 ? unpaired : ObjectOptions{};
+          ASSERT_TRUE(engine.Erase(k).ok());
+          ASSERT_TRUE(oracle.Erase(k).ok());
+          ASSERT_TRUE(engine.Insert(k, b, o).ok());
+          ASSERT_TRUE(oracle.Insert(k, b, o).ok());
+          break;
+        }
+        case 1:
+        case 2:
+          ASSERT_TRUE(engine.Update(k, b).ok());
+          ASSERT_TRUE(oracle.Update(k, b).ok());
+          break;
+        default:
+          break;
+      }
+    }
+  }
+  EXPECT_GT(events, 200u);
 }
 
 }  // namespace

@@ -91,16 +91,21 @@ namespace {
 using Cell = detail::SegmentedSapCore<3, float>;
 using Probe = detail::WitnessProbe<Cell>;
 
+// Witness buffers a change (the large set's, during the routing); Fold folds it with the cells'.
 TEST(GridWitness, OnlyTheFirstAndLastWitnessAreEvents) {
   Probe w(0, 1);
   for (int i = 0; i < 3; ++i) w.Witness(1, 2, true);  // three cells hold the pair
+  EXPECT_EQ(w.Count(1, 2), 0u);                       // not folded yet
+  w.Fold();
   EXPECT_EQ(w.Count(1, 2), 3u);
   EXPECT_EQ(w.Events(), (std::vector<std::pair<uint64_t, bool>>{{detail::HandlePair(1, 2), true}}));
   w.Witness(2, 1, false);  // either order of the handles
   w.Witness(1, 2, false);
+  w.Fold();
   EXPECT_EQ(w.Count(1, 2), 1u);
   EXPECT_TRUE(w.Events().empty());
   w.Witness(1, 2, false);
+  w.Fold();
   EXPECT_EQ(w.Count(1, 2), 0u);
   EXPECT_TRUE(w.Extras().empty());
   EXPECT_EQ(w.Events(), (std::vector<std::pair<uint64_t, bool>>{{detail::HandlePair(1, 2), false}}));
@@ -109,14 +114,17 @@ TEST(GridWitness, OnlyTheFirstAndLastWitnessAreEvents) {
 TEST(GridWitness, APairMovingBetweenCellsInOneQueryIsNoEvent) {
   Probe w(0, 1);
   w.Witness(3, 4, true);
+  w.Fold();
   w.Events();
   // It leaves one cell before it enters the next (its count passes through zero), then the
   // other way round: the tracker cancels the first, the count covers the second.
   w.Witness(3, 4, false);
   w.Witness(3, 4, true);
+  w.Fold();
   EXPECT_TRUE(w.Events().empty());
   w.Witness(3, 4, true);
   w.Witness(3, 4, false);
+  w.Fold();
   EXPECT_TRUE(w.Events().empty());
   EXPECT_EQ(w.Count(3, 4), 1u);
   EXPECT_TRUE(w.Extras().empty());
@@ -200,6 +208,7 @@ TEST(GridWitness, TheFoldAgreesInAnyOrderAndOnAPool) {
     for (const auto& held : cells) {
       for (uint64_t p : held) probe->Witness(detail::PairFirst(p), detail::PairSecond(p), true);
     }
+    probe->Fold();
     probe->EndRecount();
     EXPECT_EQ(probe->Extras(), extras);
     EXPECT_EQ(probe->tracker().overlaps(), before.size());

@@ -20,8 +20,14 @@ class SceneRunner {
  public:
   /// static_rest: objects of resting slots are inserted static (no static-static pairs; the
   /// golden hashes then no longer apply).
-  SceneRunner(Broadphase<K, T>& engine, const SceneParams& params, bool static_rest = false)
-      : engine_(engine), scene_(params), static_rest_(static_rest) {}
+  /// unpaired_every: every n-th object by id (0: none) gets mask 0, so that it pairs with
+  /// nothing (the golden hashes then no longer apply either).
+  SceneRunner(Broadphase<K, T>& engine, const SceneParams& params, bool static_rest = false,
+              uint32_t unpaired_every = 0)
+      : engine_(engine),
+        scene_(params),
+        static_rest_(static_rest),
+        unpaired_every_(unpaired_every) {}
 
   /// Inserts frame 0 and queries it; returns the milliseconds taken.
   double Build() {
@@ -105,6 +111,7 @@ class SceneRunner {
   ObjectOptions Options(const SceneBox& b) const {
     ObjectOptions o;
     o.is_static = static_rest_ && !b.moves;
+    if (unpaired_every_ != 0 && b.id % unpaired_every_ == 0) o.mask = 0;
     return o;
   }
   void Check(const Status& s, uint64_t id) {
@@ -115,6 +122,7 @@ class SceneRunner {
   Broadphase<K, T>& engine_;
   Scene scene_;
   bool static_rest_;
+  uint32_t unpaired_every_;
   FrameOps ops_;
   std::vector<typename Broadphase<K, T>::Item> items_;    // the frame's updates
   std::vector<typename Broadphase<K, T>::Item> inserts_;  // the frame's inserts

@@ -74,7 +74,7 @@ class GridCore : private GridSizing<Cell> {
     swaps_ = tests_ = cells_queried_ = pool_routed_ = worker_cells_ = 0;
     global_ = rebuilt_ = false;
     PlaceFirst(inserts);
-    defer_locals_ = large_count_ == 0;
+    defer_locals_ = true;  // until a large object changes (GridLargeSet::InsertLarge, MoveLarge)
     phase_ = Stopwatch();
     route_ms_ = cells_ms_ = fold_ms_ = 0;
     if (!RouteOnPool(erases, updates, inserts)) {
@@ -197,7 +197,11 @@ class GridCore : private GridSizing<Cell> {
   using Base::InsertObjects;
   using Base::kNone;
   using Base::large_;
+  using Base::large_changes_;
   using Base::large_count_;
+  using Base::PairsWithNothing;
+  using Base::unpaired_;
+  using Base::kUnpaired;
   using Base::live_;
   using Base::MaybeResize;
   using Base::objects_;
@@ -224,6 +228,7 @@ class GridCore : private GridSizing<Cell> {
   using Base::tests_;
   using Base::touched_;
   using Base::tracker_;
+  using Base::serial_witnessed_;
   using Base::witnessed_;
   using Base::worker_cells_;
   using typename Base::CellCoord;

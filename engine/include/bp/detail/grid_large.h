@@ -153,7 +153,8 @@ class GridLargeSet : public GridWitness<Cell> {
   // Brings the pairs of small object h with the candidates up to date (h dead: removes them).
   // `before` is h's box at the last query (nullptr: h was in no partner set), which tells
   // whether h is a candidate's partner without a look-up. A candidate changed in this query
-  // (or erased: its slot is free or changed) is skipped: its rescan settles its pairs.
+  // (or erased: its slot is free or changed) is skipped: its rescan settles its pairs. A change
+  // waits in large_changes_ until the routing ends (ApplyLargeChanges).
   // The tests are branch-free: whether a moved object overlaps a large one then and now is
   // unpredictable per axis, and a short-circuit test mispredicted often enough to take most of
   // a frame's routing; that the two agree is predictable.
@@ -170,8 +171,31 @@ class GridLargeSet : public GridWitness<Cell> {
       const uint32_t now = alive & OverlapsBranchFree(box, lbox);
       const uint32_t had = was & OverlapsBranchFree(then, lbox);
       if (had == now) continue;
-      if (now != 0 ? lg.partners.Insert(h) : lg.partners.Erase(h)) Witness(h, lg.handle, now != 0);
+      large_changes_.push_back(LargeChange{l, h, now != 0});
     }
+  }
+
+  // Applies the candidate tests' changes to the partner sets, grouped by large object (each
+  // set's lines then come in once, where in the routing's order every change was a miss), and
+  // witnesses them. A change for a large object that changed later in the query (or was
+  // erased) is dropped: its rescan, or its erase, settles its pairs from the sets as they were.
+  void ApplyLargeChanges() {
+    if (large_changes_.empty()) return;
+    std::vector<uint32_t>& begin = scratch_;
+    begin.assign(large_.size() + 1, 0);
+    for (const LargeChange& c : large_changes_) ++begin[c.large + 1];
+    for (size_t l = 0; l < large_.size(); ++l) begin[l + 1] += begin[l];
+    sorted_changes_.resize(large_changes_.size());
+    for (const LargeChange& c : large_changes_) sorted_changes_[begin[c.large]++] = c;
+    for (const LargeChange& c : sorted_changes_) {
+      Large& lg = large_[c.large];
+      if (lg.changed || lg.handle == kNone) continue;
+      const bool done = c.now ? lg.partners.Insert(c.h) : lg.partners.Erase(c.h);
+      BP_ASSERT(done);
+      (void)done;
+      Witness(c.h, lg.handle, c.now);
+    }
+    large_changes_.clear();
   }
   // Overlaps (closed intervals) on every axis without branches (valid boxes: no NaN).
   static uint32_t OverlapsBranchFree(const BoxType& a, const BoxType& b) {
@@ -234,9 +258,10 @@ class GridLargeSet : public GridWitness<Cell> {
     }
   }
 
-  // Rescans the large objects that changed in this query (after its routing), then bins them
-  // again.
+  // Applies the candidate tests' changes, rescans the large objects that changed in this query
+  // (after its routing), then bins them again.
   void RescanChanged() {
+    ApplyLargeChanges();
     for (uint32_t l : changed_large_) {
       large_[l].changed = false;
       if (large_[l].handle != kNone) Rescan(l);
@@ -339,6 +364,7 @@ class GridLargeSet : public GridWitness<Cell> {
     large_stamp_.clear();
     free_large_.clear();
     changed_large_.clear();
+    large_changes_.clear();
     large_count_ = 0;
     bin_begin_.clear();
     bin_large_.clear();
@@ -346,8 +372,9 @@ class GridLargeSet : public GridWitness<Cell> {
   }
 
   // At most this many bins (per axis: kBinsPerAxis, the largest integer whose K-th power fits).
-  static constexpr size_t kMaxBins = 4096;
-  static constexpr uint32_t kBinsPerAxis = kAxes == 1 ? 4096 : kAxes == 2 ? 64 : kAxes == 3 ? 16 : 8;
+  static constexpr size_t kMaxBins = 32768;
+  static constexpr uint32_t kBinsPerAxis =
+      kAxes == 1 ? 32768 : kAxes == 2 ? 181 : kAxes == 3 ? 32 : kAxes == 4 ? 13 : 4;
 
   std::vector<Large> large_;
   // The bins (invariant 1): bin b lists bin_large_[bin_begin_[b], bin_begin_[b + 1]); bins_[a]
@@ -366,6 +393,13 @@ class GridLargeSet : public GridWitness<Cell> {
   std::vector<uint32_t> large_stamp_;  // by large index, against large_epoch_
   uint32_t large_epoch_ = 0;
   std::vector<uint32_t> candidates_, found_, scratch_;
+  // A small object's change of status with an unchanged large object, found by the candidate
+  // tests, applied after the routing (ApplyLargeChanges).
+  struct LargeChange {
+    uint32_t large, h;
+    bool now;
+  };
+  std::vector<LargeChange> large_changes_, sorted_changes_;
 };
 
 }  // namespace bp::detail

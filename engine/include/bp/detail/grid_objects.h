@@ -16,7 +16,8 @@
 // Invariants (with the cell table's, see detail/grid_cells.h):
 //  1. A live small object's refs list, in row-major order over its cell range, one (cell, local)
 //     per cell; cells_[cell] has that coordinate and global[local] is the object. A large
-//     object has no references (nrefs 0) and its index in the large set.
+//     object has no references (nrefs 0) and its index in the large set. An object that pairs
+//     with nothing has no references and large kUnpaired, and unpaired_ counts them.
 //  2. A block of 2^k references is either an object's or on free_refs_[k], never both.
 #pragma once
 
@@ -54,6 +55,9 @@ class GridObjects {
   using CellCoord = typename Space::Coord;
   static constexpr int64_t kLimit = Space::kLimit;
   static constexpr uint32_t kNone = ~uint32_t{0};
+  // Object::large of an object that pairs with nothing (PairsWithNothing): it lives in its
+  // record only, in no cell and not in the large set, and costs a query nothing but its record.
+  static constexpr uint32_t kUnpaired = kNone - 1;
 
   struct CellRef {
     uint32_t cell;
@@ -67,7 +71,7 @@ class GridObjects {
     CellCoord lo{}, hi{};    // cell range
     uint32_t refs = 0;       // first CellRef in refs_ (small objects)
     uint32_t nrefs = 0;      // cells covered (0 for large objects)
-    uint32_t large = kNone;  // index in large_ (large objects)
+    uint32_t large = kNone;  // index in large_ (large objects), or kUnpaired
     State state = State::kDead;
   };
   struct alignas(sizeof(ObjectFields) <= 64 ? 64 : alignof(ObjectFields)) Object : ObjectFields {};
@@ -85,6 +89,14 @@ class GridObjects {
   }
 
   static void Prefetch(const void* p) { __builtin_prefetch(p); }
+
+  // True iff handle h's options accept no object at all (mask or category 0: see
+  // bp/object_options.h): its pairs are never formed, so it is kept out of the cells.
+  bool PairsWithNothing(uint32_t h) const {
+    if (!tracker_.filtering()) return false;
+    const ObjectOptions& o = tracker_.options(h);
+    return o.mask == 0 || o.category == 0;
+  }
 
   /// The worker pool, when the grid has one and a loop over n light items (look-ups, routing)
   /// is worth waking its workers for (n >= options().parallel_routing_from); else nullptr. The
@@ -124,6 +136,7 @@ class GridObjects {
   Options options_;
   std::unique_ptr<WorkerPool> pool_;  // when threads > 1
   size_t live_ = 0;
+  size_t unpaired_ = 0;  // live objects that pair with nothing (kUnpaired)
   HugeVector<Object> objects_;
   HugeVector<CellRef> refs_;
   std::vector<std::vector<uint32_t>> free_refs_;

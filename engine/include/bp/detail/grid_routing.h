@@ -8,8 +8,9 @@
 // cells are applied (GridCore::QueryCells). Only cells with buffered operations are applied, so
 // the work per query is O(u + e) plus the cells' own.
 //
-// While no large object exists, an insert's local handle in a cell is allocated when the cell
-// is applied (on its pool thread), not here (defer_locals_, see EnterCell).
+// Until a large object is inserted or moved in the query (its rescan reads the cells' tables),
+// an insert's local handle in a cell is allocated when the cell is applied (on its pool
+// thread), not here (defer_locals_, see EnterCell).
 //
 // Thread safety: none (a parallel routing, GridParallelRouting, runs these on the caller's
 // thread for the updates its runs leave).
@@ -39,6 +40,7 @@ class GridRouting : public GridLargeSet<Cell> {
   using Base::kAxes;
   using Base::kDim;
   using Base::kNone;
+  using Base::kUnpaired;
   using typename Base::BoxType;
   using typename Base::CellCoord;
   using typename Base::CellRef;
@@ -62,6 +64,9 @@ class GridRouting : public GridLargeSet<Cell> {
   using Base::FreeRefs;
   using Base::objects_;
   using Base::options_;
+  using Base::PairsWithNothing;
+  using Base::tracker_;
+  using Base::unpaired_;
   using Base::Prefetch;
   using Base::RangeOf;
   using Base::refs_;
@@ -103,6 +108,8 @@ class GridRouting : public GridLargeSet<Cell> {
         const HandleBox<kDim, Coord>& ahead = inserts[i + 16];
         if (ahead.handle < objects_.size()) Prefetch(&objects_[ahead.handle]);
         if (const void* line = cell_of_.HomeLine(FirstCellKey(ahead.box))) Prefetch(line);
+        // With filters, its options (PairsWithNothing reads them first).
+        if (tracker_.filtering()) Prefetch(&tracker_.options(ahead.handle));
       }
       if (i + 8 < n) {
         // The first cell's work entry, which routing the insert writes (Touch); and its record
@@ -122,6 +129,12 @@ class GridRouting : public GridLargeSet<Cell> {
     BP_ASSERT(o.state == State::kDead);
     o.state = State::kLive;
     objects_[h].box = box;
+    if (PairsWithNothing(h)) {
+      o.large = kUnpaired;
+      o.nrefs = 0;
+      ++unpaired_;
+      return;
+    }
     CellCoord lo, hi;
     RangeOf(box, &lo, &hi);
     if (CellCount(lo, hi) > options_.max_cells_per_object) {
@@ -164,6 +177,11 @@ class GridRouting : public GridLargeSet<Cell> {
     BP_ASSERT(o.state == State::kLive);
     o.state = State::kDead;
     if (o.large != kNone) {
+      if (o.large == kUnpaired) {
+        o.large = kNone;
+        --unpaired_;
+        return;
+      }
       EraseLarge(h);
       return;
     }
@@ -180,6 +198,10 @@ class GridRouting : public GridLargeSet<Cell> {
   void UpdateObject(uint32_t h, const BoxType& box, bool kept_routed = false) {
     Object& o = objects_[h];
     BP_ASSERT(o.state == State::kLive);
+    if (o.large == kUnpaired) {
+      o.box = box;
+      return;
+    }
     const BoxType before = objects_[h].box;
     objects_[h].box = box;
     CellCoord lo, hi;
@@ -493,8 +515,8 @@ class GridRouting : public GridLargeSet<Cell> {
   HugeVector<HandleBox<kDim, Coord>> grouped_inserts_;
   std::vector<uint32_t> grouped_insert_refs_;
   // This query allocates cell-local handles of inserts when it applies the cells (EnterCell).
-  // Only while no large object exists: a large object's scans read the cells' tables, so the
-  // first one to appear ends the deferral (AssignDeferredLocals).
+  // Only until a large object is inserted or moved: its rescan reads the cells' tables, so the
+  // first such change ends the deferral (AssignDeferredLocals).
   bool defer_locals_ = false;
   // Per cell index, this query's work: touched (in touched_), the updates, erases and inserts
   // routed to it, and where their runs start in grouped_, grouped_erases_ and grouped_inserts_.

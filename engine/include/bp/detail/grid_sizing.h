@@ -35,6 +35,9 @@ class GridSizing : public GridParallelRouting<Cell> {
   using Base::ClearCells;
   using Base::ClearLarge;
   using Base::defer_locals_;
+  using Base::kUnpaired;
+  using Base::PairsWithNothing;
+  using Base::unpaired_;
   using Base::EndRecount;
   using Base::EnterCells;
   using Base::free_refs_;
@@ -67,12 +70,19 @@ class GridSizing : public GridParallelRouting<Cell> {
   // the automatic size.
   void PlaceFirst(std::span<const HandleBox<kDim, Coord>> inserts) {
     if (!placed_ && !inserts.empty()) {
-      // First objects: choose the origin, and the automatic size, from them.
-      Sizing sizing = IdealCellSize(inserts.size(), [&](auto&& f) {
-        for (const auto& hb : inserts) f(hb.box);
+      // First objects: choose the origin, and the automatic size, from those that go into
+      // cells (an object that pairs with nothing never does).
+      size_t n = 0;
+      for (const auto& hb : inserts) n += PairsWithNothing(hb.handle) ? size_t{0} : size_t{1};
+      if (n == 0) return;
+      const GridSizing* self = this;  // named: GCC 12 cannot capture this in this generic lambda
+      Sizing sizing = IdealCellSize(n, [self, inserts](auto&& f) {
+        for (const auto& hb : inserts) {
+          if (!self->PairsWithNothing(hb.handle)) f(hb.box);
+        }
       });
       SetCellSize(inv_size_ == 0 ? sizing.size : cell_size_, sizing.middle);
-      sized_for_ = inserts.size();
+      sized_for_ = n;
       placed_ = true;
     }
   }
@@ -137,11 +147,13 @@ class GridSizing : public GridParallelRouting<Cell> {
   // only if the ideal size differs by more than 2x.
   void MaybeResize() {
     if (options_.cell_size > 0) return;
-    if (live_ < 64 || (live_ <= 4 * sized_for_ && 4 * live_ >= sized_for_)) return;
-    sized_for_ = live_;
-    Sizing ideal = IdealCellSize(live_, [&](auto&& f) {
+    const size_t placed = live_ - unpaired_;  // the objects in cells or the large set
+    if (placed < 64 || (placed <= 4 * sized_for_ && 4 * placed >= sized_for_)) return;
+    sized_for_ = placed;
+    Sizing ideal = IdealCellSize(placed, [&](auto&& f) {
       for (uint32_t h = 0; h < objects_.size(); ++h) {
-        if (objects_[h].state == State::kLive) f(objects_[h].box);
+        const Object& o = objects_[h];
+        if (o.state == State::kLive && o.large != kUnpaired) f(o.box);
       }
     });
     if (ideal.size > 0.5 * cell_size_ && ideal.size < 2 * cell_size_) return;
@@ -162,6 +174,7 @@ class GridSizing : public GridParallelRouting<Cell> {
     BeginRecount();
     for (uint32_t h = 0; h < objects_.size(); ++h) {
       Object& o = objects_[h];
+      if (o.large == kUnpaired) continue;  // in no cell: stays as it is
       o.large = kNone;
       o.nrefs = 0;
       if (o.state != State::kLive) continue;

@@ -40,11 +40,20 @@ template <class Cell>
 Status GridCore<Cell>::ValidateRecords(std::vector<uint32_t>* live_out) const {
   std::vector<uint32_t>& live = *live_out;
   live.clear();
-  size_t large_live = 0;
+  size_t large_live = 0, unpaired = 0;
   for (uint32_t h = 0; h < objects_.size(); ++h) {
     const Object& o = objects_[h];
-    if (o.state != State::kLive) continue;
+    if (o.state != State::kLive) {
+      if (o.large == kUnpaired) return Invalid("object " + std::to_string(h) + ": dead unpaired");
+      continue;
+    }
     live.push_back(h);
+    if (o.large == kUnpaired || PairsWithNothing(h)) {
+      if (o.large != kUnpaired || o.nrefs != 0 || !PairsWithNothing(h))
+        return Invalid("object " + std::to_string(h) + ": pairs with nothing, yet placed");
+      ++unpaired;
+      continue;
+    }
     CellCoord lo, hi;
     RangeOf(objects_[h].box, &lo, &hi);
     if (lo != o.lo || hi != o.hi)
@@ -70,6 +79,7 @@ Status GridCore<Cell>::ValidateRecords(std::vector<uint32_t>* live_out) const {
   }
   if (live.size() != live_) return Invalid("live count differs");
   if (large_live != large_count_) return Invalid("large count differs");
+  if (unpaired != unpaired_) return Invalid("unpaired count differs");
   return Status::Ok();
 }
 
@@ -155,6 +165,7 @@ Status GridCore<Cell>::ValidateLargeSet(const std::vector<uint32_t>& live,
                                         FlatMap<uint64_t, uint32_t>* count_out) const {
   FlatMap<uint64_t, uint32_t>& count = *count_out;
   if (bins_stale_) return Invalid("large bins out of date after a query");
+  if (!large_changes_.empty()) return Invalid("large-object changes left after a query");
   if (large_count_ != 0 && bin_begin_.size() < 2) return Invalid("large objects without bins");
   if (!bin_begin_.empty()) {
     // Each live large object once in every bin its range touches, and nothing else listed.
@@ -214,6 +225,9 @@ Status GridCore<Cell>::ValidateWitnessCounts(const FlatMap<uint64_t, uint32_t>& 
     ok = ok && (n == 1 ? e == nullptr : (e != nullptr && *e == n - 1));
     multi += n > 1;
   });
+  for (const auto& w : serial_witnessed_) {
+    if (!w.empty()) return Invalid("witness changes left after a query");
+  }
   size_t extras = 0;
   for (const auto& extra : extra_) extras += extra.size();
   if (!ok || count.size() != tracker_.overlaps() || multi != extras) {

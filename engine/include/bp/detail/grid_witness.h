@@ -7,8 +7,9 @@
 // cells share.
 //
 // The cells' changes wait, translated to global handles, in per-thread buffers by shard of the
-// tracker (witnessed_, filled by GridCore::ApplyCell) and are folded shard by shard, in
-// parallel when there are enough (FoldWitnessed). A rebuild (GridSizing::Regrid) recounts
+// tracker (witnessed_, filled by GridCore::ApplyCell), and the large set's in buffers of their
+// own (serial_witnessed_, filled by Witness during the routing), and are folded shard by shard,
+// in parallel when there are enough (FoldWitnessed), with the lines they probe prefetched. A rebuild (GridSizing::Regrid) recounts
 // instead: the tracker already holds the pair set, and only extra_ is rebuilt.
 //
 // Thread safety: none, except that FoldShard for distinct shards runs on distinct threads.
@@ -16,6 +17,7 @@
 //  1. For every pair, the cells whose core holds it plus the large set (once) number
 //     1 + extra_[pair] when the tracker holds it (extra_ absent means 1), and 0 otherwise.
 //  2. extra_ has one map per shard of the tracker, and a pair's count lies in its shard's.
+//  3. Between queries no change waits in serial_witnessed_.
 #pragma once
 
 #include <cstddef>
@@ -64,6 +66,7 @@ class GridWitness : public GridCellTable<Cell> {
   void FoldWitnessed() {
     size_t changes = 0;
     for (const auto& w : witnessed_) changes += w.size();
+    for (const auto& w : serial_witnessed_) changes += w.size();
     const size_t shards = tracker_.shards();
     if (shards > 1 && !recount_ && PoolFor(kWitnessWeight * changes) != nullptr) {
       pool_->ParallelFor(shards, 1, [this](size_t begin, size_t end, unsigned) {
@@ -72,6 +75,7 @@ class GridWitness : public GridCellTable<Cell> {
     } else {
       for (size_t shard = 0; shard < shards; ++shard) FoldShard(shard);
     }
+    for (auto& w : serial_witnessed_) w.clear();
   }
 
   // Starts loading the lines that folding change w (of FoldShard's shard) probes: the overlap
@@ -95,19 +99,25 @@ class GridWitness : public GridCellTable<Cell> {
   void FoldShard(size_t shard) {
     static constexpr size_t kFoldAhead = 32;
     const size_t shards = tracker_.shards();
-    for (size_t at = shard; at < witnessed_.size(); at += shards) {
-      const std::vector<Witnessed>& buf = witnessed_[at];
+    const auto fold = [&](const std::vector<Witnessed>& buf) {
       for (size_t k = 0; k < buf.size(); ++k) {
         if (k + kFoldAhead < buf.size()) BP_GRID_PREFETCH_WITNESS(&buf[k + kFoldAhead]);
         WitnessIn(shard, buf[k].a, buf[k].b, buf[k].now);
       }
-    }
+    };
+    for (size_t at = shard; at < witnessed_.size(); at += shards) fold(witnessed_[at]);
+    if (shard < serial_witnessed_.size()) fold(serial_witnessed_[shard]);
   }
 #undef BP_GRID_PREFETCH_WITNESS
 
-  // One more (add) or one fewer (remove) witness of the pair a, b.
+  // One more (add) or one fewer (remove) witness of the pair a, b, folded with the cells'
+  // changes (FoldWitnessed): the pairs land all over the tracker's sets, and folded one by one
+  // as they came each probe was a cache miss.
   void Witness(uint32_t a, uint32_t b, bool add) {
-    WitnessIn(tracker_.ShardOf(HandlePair(a, b)), a, b, add);
+    const size_t shards = tracker_.shards();
+    if (serial_witnessed_.size() != shards) serial_witnessed_.resize(shards);
+    serial_witnessed_[shards == 1 ? 0 : tracker_.ShardOf(HandlePair(a, b))].push_back(
+        Witnessed{a, b, add});
   }
   // Witness of a pair whose shard (PairTracker::ShardOf) the caller knows.
   void WitnessIn(size_t shard, uint32_t a, uint32_t b, bool add) {
@@ -146,6 +156,8 @@ class GridWitness : public GridCellTable<Cell> {
 
   // Per pool thread and shard of the tracker: witnessed_[thread * shards + shard].
   std::vector<std::vector<Witnessed>> witnessed_;
+  // The large set's changes (Witness), by shard of the tracker.
+  std::vector<std::vector<Witnessed>> serial_witnessed_;
   // Witnesses beyond the first, by shard of the tracker; line-aligned, as the folding threads
   // write their shards' headers.
   struct alignas(64) Extra : FlatMap<uint64_t, uint32_t> {};
