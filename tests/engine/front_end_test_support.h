@@ -1,6 +1,7 @@
 // What the front end's tests share: FrontEndTestPeer, white-box access to a front end
 // (detail/front_end.h): the epoch, UpdateMany's claims run in an order two threads take only by
-// chance, and corruptions of each part that Validate must notice; and FrontEndEngines, one engine of each family with a variety of coordinates.
+// chance, and corruptions of each part that Validate must notice; and FrontEndEngines, one engine
+// of each family with a variety of coordinates.
 #pragma once
 
 #include <algorithm>

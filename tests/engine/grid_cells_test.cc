@@ -140,7 +140,8 @@ TEST(Grid, ObjectsThatPairWithNothingStayOutOfTheCells) {
       const Box<3, float> b = box();
       switch (rng() % 8) {
         case 0: {  // back with the other options: paired turns unpaired, or the other way
-          const ObjectOptions o = (k + static_cast<uint64_t>(f)) % 2 == 0 ? unpaired : ObjectOptions{};
+          const ObjectOptions o =
+              (k + static_cast<uint64_t>(f)) % 2 == 0 ? unpaired : ObjectOptions{};
           ASSERT_TRUE(engine.Erase(k).ok());
           ASSERT_TRUE(oracle.Erase(k).ok());
           ASSERT_TRUE(engine.Insert(k, b, o).ok());

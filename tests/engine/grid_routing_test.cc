@@ -84,7 +84,8 @@ TEST(GridRouting, EachChangeReachesTheCellsItConcerns) {
   const auto coord = [&] { return std::uniform_real_distribution<float>(0, 60)(rng); };
   const auto extent = [&] { return std::uniform_real_distribution<float>(0.5f, 14)(rng); };
   std::vector<HB> inserts;
-  for (uint32_t h = 0; h < 40; ++h) inserts.push_back(HB{h, BoxAt(coord(), coord(), coord(), extent())});
+  for (uint32_t h = 0; h < 40; ++h)
+    inserts.push_back(HB{h, BoxAt(coord(), coord(), coord(), extent())});
   core.Apply({}, {}, inserts);
   ASSERT_TRUE(core.Validate().ok());
 
@@ -96,7 +97,7 @@ TEST(GridRouting, EachChangeReachesTheCellsItConcerns) {
   for (uint32_t h = 0; h < 40; ++h) {
     if (std::count(erases.begin(), erases.end(), h) != 0) continue;
     const Box<3, float> b = h % 2 == 0 ? BoxAt(coord(), coord(), coord(), extent())  // most migrate
-                   : inserts[h].box;                              // the same box: its cells
+                                       : inserts[h].box;  // the same box: its cells
     updates.push_back(HB{h, b});
   }
   std::vector<HB> fresh = {HB{40, BoxAt(5, 5, 5, 1)}, HB{41, BoxAt(15, 25, 35, 12)},
@@ -107,7 +108,8 @@ TEST(GridRouting, EachChangeReachesTheCellsItConcerns) {
   for (uint32_t h : erases) {
     for (uint32_t c : before[h]) want.erases.emplace_back(c, h);
   }
-  for (const HB& u : updates) AddUpdate(before[u.handle], Peer::CellsOf(core, u.handle), u.handle, &want);
+  for (const HB& u : updates)
+    AddUpdate(before[u.handle], Peer::CellsOf(core, u.handle), u.handle, &want);
   for (const HB& i : fresh) AddUpdate({}, Peer::CellsOf(core, i.handle), i.handle, &want);
   EXPECT_GT(want.erases.size(), 5u);
   EXPECT_GT(want.inserts.size(), 10u);

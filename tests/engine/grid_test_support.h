@@ -61,14 +61,19 @@ struct GridTestPeer {
   template <class Core>
   static Routed RoutedOps(const Core& core) {
     Routed out;
-    const auto global = [&](uint32_t cell, uint32_t local) { return core.cells_[cell]->global[local]; };
-    for (const auto& r : core.routed_) out.updates.emplace_back(r.cell, global(r.cell, r.update.handle));
-    for (const auto& r : core.routed_erases_) out.erases.emplace_back(r.cell, global(r.cell, r.local));
+    const auto global = [&](uint32_t cell, uint32_t local) {
+      return core.cells_[cell]->global[local];
+    };
+    for (const auto& r : core.routed_)
+      out.updates.emplace_back(r.cell, global(r.cell, r.update.handle));
+    for (const auto& r : core.routed_erases_)
+      out.erases.emplace_back(r.cell, global(r.cell, r.local));
     for (size_t k = 0; k < core.routed_inserts_.size(); ++k) {
       const auto& r = core.routed_inserts_[k];
       // A deferred insert still carries its global handle (see GridRouting::EnterCell).
       const bool deferred = core.routed_insert_refs_[k] != Core::kNone;
-      out.inserts.emplace_back(r.cell, deferred ? r.update.handle : global(r.cell, r.update.handle));
+      out.inserts.emplace_back(r.cell,
+                               deferred ? r.update.handle : global(r.cell, r.update.handle));
     }
     out.touched = core.touched_;
     return out;

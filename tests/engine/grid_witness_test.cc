@@ -61,9 +61,8 @@ class WitnessProbe : public GridWitness<Cell> {
   // The events since the last call: (pair, overlapping now), sorted.
   std::vector<std::pair<uint64_t, bool>> Events() {
     std::vector<std::pair<uint64_t, bool>> out;
-    tracker_.DrainChanges([&](uint32_t a, uint32_t b, bool now) {
-      out.emplace_back(HandlePair(a, b), now);
-    });
+    tracker_.DrainChanges(
+        [&](uint32_t a, uint32_t b, bool now) { out.emplace_back(HandlePair(a, b), now); });
     std::sort(out.begin(), out.end());
     return out;
   }
@@ -108,7 +107,8 @@ TEST(GridWitness, OnlyTheFirstAndLastWitnessAreEvents) {
   w.Fold();
   EXPECT_EQ(w.Count(1, 2), 0u);
   EXPECT_TRUE(w.Extras().empty());
-  EXPECT_EQ(w.Events(), (std::vector<std::pair<uint64_t, bool>>{{detail::HandlePair(1, 2), false}}));
+  EXPECT_EQ(w.Events(),
+            (std::vector<std::pair<uint64_t, bool>>{{detail::HandlePair(1, 2), false}}));
 }
 
 TEST(GridWitness, APairMovingBetweenCellsInOneQueryIsNoEvent) {

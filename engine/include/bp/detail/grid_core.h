@@ -165,7 +165,6 @@ class GridCore : private GridSizing<Cell> {
   using Base::beside_ran_;
   using Base::BesideRan;
   using Base::bin_begin_;
-  using Base::kAxes;
   using Base::bin_large_;
   using Base::BinRange;
   using Base::bins_stale_;
@@ -195,17 +194,17 @@ class GridCore : private GridSizing<Cell> {
   using Base::grouped_shard_;
   using Base::GroupUpdates;
   using Base::InsertObjects;
+  using Base::kAxes;
   using Base::kNone;
+  using Base::kUnpaired;
   using Base::large_;
   using Base::large_changes_;
   using Base::large_count_;
-  using Base::PairsWithNothing;
-  using Base::unpaired_;
-  using Base::kUnpaired;
   using Base::live_;
   using Base::MaybeResize;
   using Base::objects_;
   using Base::options_;
+  using Base::PairsWithNothing;
   using Base::phase_;
   using Base::PlaceFirst;
   using Base::pool_;
@@ -221,6 +220,7 @@ class GridCore : private GridSizing<Cell> {
   using Base::routed_inserts_;
   using Base::RouteOnPool;
   using Base::RouteUpdates;
+  using Base::serial_witnessed_;
   using Base::SetCellSize;
   using Base::shard_work_;
   using Base::shards_;
@@ -228,7 +228,7 @@ class GridCore : private GridSizing<Cell> {
   using Base::tests_;
   using Base::touched_;
   using Base::tracker_;
-  using Base::serial_witnessed_;
+  using Base::unpaired_;
   using Base::witnessed_;
   using Base::worker_cells_;
   using typename Base::CellCoord;

@@ -44,8 +44,8 @@ class GridLargeSet : public GridWitness<Cell> {
  protected:
   using Base::cells_;
   using Base::ForEachExistingCell;
-  using Base::kAxes;
   using Base::grid;
+  using Base::kAxes;
   using Base::kNone;
   using Base::objects_;
   using Base::refs_;
@@ -337,7 +337,8 @@ class GridLargeSet : public GridWitness<Cell> {
     size_t total = 1;
     for (size_t a = 0; a < kAxes; ++a) {
       bin_origin_[a] = lo[a];
-      bins_[a] = static_cast<uint32_t>(((static_cast<uint64_t>(int64_t{hi[a]} - lo[a])) >> bin_shift_) + 1);
+      bins_[a] = static_cast<uint32_t>(
+          ((static_cast<uint64_t>(int64_t{hi[a]} - lo[a])) >> bin_shift_) + 1);
       total *= bins_[a];
     }
     // Counting sort of (bin, large) entries into bin_begin_ / bin_large_.
@@ -373,8 +374,11 @@ class GridLargeSet : public GridWitness<Cell> {
 
   // At most this many bins (per axis: kBinsPerAxis, the largest integer whose K-th power fits).
   static constexpr size_t kMaxBins = 32768;
-  static constexpr uint32_t kBinsPerAxis =
-      kAxes == 1 ? 32768 : kAxes == 2 ? 181 : kAxes == 3 ? 32 : kAxes == 4 ? 13 : 4;
+  static constexpr uint32_t kBinsPerAxis = kAxes == 1   ? 32768
+                                           : kAxes == 2 ? 181
+                                           : kAxes == 3 ? 32
+                                           : kAxes == 4 ? 13
+                                                        : 4;
 
   std::vector<Large> large_;
   // The bins (invariant 1): bin b lists bin_large_[bin_begin_[b], bin_begin_[b + 1]); bins_[a]

@@ -65,12 +65,12 @@ class GridRouting : public GridLargeSet<Cell> {
   using Base::objects_;
   using Base::options_;
   using Base::PairsWithNothing;
-  using Base::tracker_;
-  using Base::unpaired_;
   using Base::Prefetch;
   using Base::RangeOf;
   using Base::refs_;
   using Base::Reserve;
+  using Base::tracker_;
+  using Base::unpaired_;
   // The large set and the witness counts.
   using Base::AddLargeCandidates;
   using Base::BeginLargeCandidates;

@@ -35,9 +35,6 @@ class GridSizing : public GridParallelRouting<Cell> {
   using Base::ClearCells;
   using Base::ClearLarge;
   using Base::defer_locals_;
-  using Base::kUnpaired;
-  using Base::PairsWithNothing;
-  using Base::unpaired_;
   using Base::EndRecount;
   using Base::EnterCells;
   using Base::free_refs_;
@@ -47,9 +44,11 @@ class GridSizing : public GridParallelRouting<Cell> {
   using Base::kAxes;
   using Base::kDim;
   using Base::kNone;
+  using Base::kUnpaired;
   using Base::live_;
   using Base::objects_;
   using Base::options_;
+  using Base::PairsWithNothing;
   using Base::phase_;
   using Base::RangeOf;
   using Base::rebuilt_;
@@ -57,6 +56,7 @@ class GridSizing : public GridParallelRouting<Cell> {
   using Base::RescanChanged;
   using Base::route_ms_;
   using Base::SetCellSize;
+  using Base::unpaired_;
   using typename Base::BoxType;
   using typename Base::CellCoord;
   using typename Base::Coord;

@@ -173,7 +173,8 @@ Status GridCore<Cell>::ValidateLargeSet(const std::vector<uint32_t>& live,
     std::array<uint32_t, kAxes> blo, bhi;
     size_t expected = 0;
     bool ok = bin_begin_.back() == bin_large_.size();
-    for (size_t b = 0; b + 1 < bin_begin_.size() && ok; ++b) ok = bin_begin_[b] <= bin_begin_[b + 1];
+    for (size_t b = 0; b + 1 < bin_begin_.size() && ok; ++b)
+      ok = bin_begin_[b] <= bin_begin_[b + 1];
     for (uint32_t l = 0; l < large_.size() && ok; ++l) {
       if (large_[l].handle == kNone) continue;
       BinRange(objects_[large_[l].handle].lo, objects_[large_[l].handle].hi, &blo, &bhi);

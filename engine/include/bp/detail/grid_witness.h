@@ -9,8 +9,9 @@
 // The cells' changes wait, translated to global handles, in per-thread buffers by shard of the
 // tracker (witnessed_, filled by GridCore::ApplyCell), and the large set's in buffers of their
 // own (serial_witnessed_, filled by Witness during the routing), and are folded shard by shard,
-// in parallel when there are enough (FoldWitnessed), with the lines they probe prefetched. A rebuild (GridSizing::Regrid) recounts
-// instead: the tracker already holds the pair set, and only extra_ is rebuilt.
+// in parallel when there are enough (FoldWitnessed), with the lines they probe prefetched. A
+// rebuild (GridSizing::Regrid) recounts instead: the tracker already holds the pair set, and only
+// extra_ is rebuilt.
 //
 // Thread safety: none, except that FoldShard for distinct shards runs on distinct threads.
 // Invariants (checked by GridCore::Validate):
