@@ -108,8 +108,6 @@ class GridRouting : public GridLargeSet<Cell> {
         const HandleBox<kDim, Coord>& ahead = inserts[i + 16];
         if (ahead.handle < objects_.size()) Prefetch(&objects_[ahead.handle]);
         if (const void* line = cell_of_.HomeLine(FirstCellKey(ahead.box))) Prefetch(line);
-        // With filters, its options (PairsWithNothing reads them first).
-        if (tracker_.filtering()) Prefetch(&tracker_.options(ahead.handle));
       }
       if (i + 8 < n) {
         // The first cell's work entry, which routing the insert writes (Touch); and its record
