@@ -286,9 +286,8 @@ Result RunTyped(const SceneParams& params, int frames, const Config& cfg,
     if (fat && rep == 0) {
       exact = MakeEngine<K, TE>(cfg, TE{});
       AddStaticBoxes<K, TE>(cfg, params, exact.get());
-      exact_runner =
-          std::make_unique<bp::workload::SceneRunner<K, TE>>(*exact, params, cfg.static_rest,
-                                                             cfg.unpaired_every);
+      exact_runner = std::make_unique<bp::workload::SceneRunner<K, TE>>(
+          *exact, params, cfg.static_rest, cfg.unpaired_every);
       exact_runner->Build();
     }
     double build = runner.Build();
@@ -345,9 +344,8 @@ SceneParams Shaped(SceneParams p, const Config& cfg) {
 
 // The golden values hold only for WORKLOADS.md's own scene.
 bool GoldenScene(const Config& cfg) {
-  return cfg.margin == 0 && !cfg.static_rest && cfg.unpaired_every == 0 &&
-         cfg.shape == "uniform" && cfg.offset == 0 &&
-         !cfg.error_vs_double && !cfg.world_box && cfg.big_boxes == 0;
+  return cfg.margin == 0 && !cfg.static_rest && cfg.unpaired_every == 0 && cfg.shape == "uniform" &&
+         cfg.offset == 0 && !cfg.error_vs_double && !cfg.world_box && cfg.big_boxes == 0;
 }
 
 Result Run(const SceneParams& scenario, int frames, const Config& cfg, const std::string& label) {

@@ -48,13 +48,11 @@ class GridLargeSet : public GridWitness<Cell> {
   using Base::kAxes;
   using Base::kNone;
   using Base::objects_;
-  using Base::refs_;
   using Base::tests_;
   using Base::tracker_;
   using Base::Witness;
   using typename Base::BoxType;
   using typename Base::CellCoord;
-  using typename Base::GridCell;
   using typename Base::Object;
   using typename Base::Options;
   using typename Base::Space;

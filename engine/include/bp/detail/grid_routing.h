@@ -69,7 +69,6 @@ class GridRouting : public GridLargeSet<Cell> {
   using Base::RangeOf;
   using Base::refs_;
   using Base::Reserve;
-  using Base::tracker_;
   using Base::unpaired_;
   // The large set and the witness counts.
   using Base::AddLargeCandidates;
