@@ -1,7 +1,9 @@
 // The grid's large-object set (detail/grid_large.h): world-sized boxes, transitions between
 // small and large, an object turning large in the middle of a query, small objects leaving the
-// range the bins were laid over and large ones moving with them. Against brute force.
+// range the bins were laid over and large ones moving with them, bins crowded with large
+// objects. Against brute force.
 #include <cstdint>
+#include <random>
 #include <string>
 #include <vector>
 
@@ -103,6 +105,54 @@ TEST(Grid, LargeObjectsFollowObjectsBeyondTheBins) {
     twin.Query();
   }
   EXPECT_GT(twin.events(), 100u);
+}
+
+// Many large objects over a few bins: each bin lists several blocks of them, and most small
+// objects' old and new cell ranges straddle bins, where a large object listed in several of
+// those bins must count once. Small objects walk, churn and grow into large ones; some large
+// ones move, shrink or leave. Every query against brute force, in 3-D float and 2-D double.
+template <int K, class T, class Engine>
+void CrowdedBins(Engine* engine) {
+  Twin<K, T, Engine> twin(engine);
+  std::mt19937_64 rng(11);
+  std::uniform_real_distribution<T> pos(0, 40), step(-1.5, 1.5);
+  std::vector<T> at(300);
+  for (uint64_t i = 0; i < at.size(); ++i) {
+    at[i] = pos(rng);
+    twin.Insert(i, CubeAt<K, T>(at[i], 1));
+  }
+  for (uint64_t i = 0; i < 70; ++i) twin.Insert(1000 + i, CubeAt<K, T>(pos(rng), 14));
+  twin.Query();
+  EXPECT_EQ(engine->GetStats().grid.value().large_objects, 70u);
+  for (int f = 0; f < 25 && !::testing::Test::HasFailure(); ++f) {
+    for (uint64_t i = 0; i < at.size(); i += 2) {
+      at[i] += step(rng);
+      twin.Update(i, CubeAt<K, T>(at[i], 1));
+    }
+    const uint64_t churn = 1 + static_cast<uint64_t>(f) * 7 % at.size();
+    twin.Erase(churn);
+    twin.Insert(churn, CubeAt<K, T>(at[churn], 1));
+    if (f % 6 == 1) twin.Update(1000 + static_cast<uint64_t>(f), CubeAt<K, T>(pos(rng), 14));
+    if (f % 6 == 3) twin.Update(3, CubeAt<K, T>(at[3], 16));  // grows large, then shrinks
+    if (f % 6 == 4) twin.Update(3, CubeAt<K, T>(at[3], 1));
+    if (f == 12) twin.Erase(1050);
+    twin.Query();
+  }
+  EXPECT_TRUE(engine->Validate().ok()) << engine->Validate().message();
+  EXPECT_GT(twin.events(), 500u);
+}
+
+TEST(Grid, CrowdedLargeObjectBinsCountEachPairOnce) {
+  GridDenseOptions dense;
+  dense.cell_size = 2;
+  dense.max_cells_per_object = 8;
+  GridDense<3, float> dense_engine(dense);
+  CrowdedBins<3, float>(&dense_engine);
+  GridSegmentedSapOptions sap;
+  sap.cell_size = 2;
+  sap.max_cells_per_object = 8;
+  GridSegmentedSap<2, double> sap_engine(sap);
+  CrowdedBins<2, double>(&sap_engine);
 }
 
 }  // namespace

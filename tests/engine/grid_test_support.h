@@ -4,6 +4,7 @@
 #pragma once
 
 #include <algorithm>
+#include <bit>
 #include <cmath>
 #include <cstdint>
 #include <limits>
@@ -108,8 +109,10 @@ struct GridTestPeer {
   // Drops the last entry of the large-object bins (detail/grid_large.h).
   template <class Core>
   static void DropLargeBinEntry(Core& core) {
-    core.bin_large_.pop_back();
-    --core.bin_begin_.back();
+    // The last listed entry's slot falls out of every owned mask.
+    auto& block = core.blocks_.back();
+    const int last = 31 - std::countl_zero(uint32_t{block.owned[0]});
+    for (auto& m : block.owned) m = static_cast<uint16_t>(m & ~(1u << last));
   }
   template <class Core>
   static void AddWitness(Core& core) {

@@ -230,4 +230,68 @@ inline uint32_t PortableBlock(const T* block, const T* lo, const T* hi) {
   }
 }
 
+/// The kernel a block test outside the dense cell runs (BlockOverlaps): the widest this CPU has
+/// for T.
+enum class BlockKernel : uint8_t { kWide, kAvx2, kPortable };
+template <class T>
+BlockKernel ResolveBlockKernel() {
+  if (kHasWideRows<T> && CpuHasAvx512()) return BlockKernel::kWide;
+  if (kHasAvx2Rows<T> && CpuHasAvx2()) return BlockKernel::kAvx2;
+  return BlockKernel::kPortable;
+}
+
+/// Two boxes against one block: bit i of (*a)[0] is set iff bit i of in[0] is and slot i of the
+/// block (laid out as above) overlaps box 0 ([lo[0], hi[0]]) on every axis; likewise for box 1.
+/// The same bits for every kernel k.
+template <class T, size_t kAxes>
+struct BlockBoxes {
+  const T* lo[2];
+  const T* hi[2];
+  uint32_t in[2];
+};
+#ifdef BP_DENSE_WIDE
+/// BlockOverlaps under AVX-512, in one call (a call into a function of another target is not
+/// inlined): the block's rows are loaded once for both boxes.
+template <class T, size_t kAxes>
+BP_WIDE_TARGET void WideBlockBoxes(const T* block, const BlockBoxes<T, kAxes>& boxes,
+                                   uint32_t* out) {
+  uint32_t m0 = boxes.in[0], m1 = boxes.in[1];  // two chains, interleaved, without branches
+  for (size_t a = 0; a < kAxes; ++a) {
+    const T* rlo = block + 2 * a * 16;
+    m0 = WideRows<T>::Overlap(m0, rlo, rlo + 16, boxes.lo[0][a], boxes.hi[0][a]);
+    m1 = WideRows<T>::Overlap(m1, rlo, rlo + 16, boxes.lo[1][a], boxes.hi[1][a]);
+  }
+  out[0] = m0;
+  out[1] = m1;
+}
+#endif
+template <class T, size_t kAxes>
+inline void BlockOverlaps(BlockKernel k, const T* block, const BlockBoxes<T, kAxes>& boxes,
+                          uint32_t* out) {
+#ifdef BP_DENSE_WIDE
+  if constexpr (kHasWideRows<T>) {
+    if (k == BlockKernel::kWide) {
+      WideBlockBoxes<T, kAxes>(block, boxes, out);
+      return;
+    }
+  }
+#endif
+  for (int b = 0; b < 2; ++b) {
+    if (boxes.in[b] == 0) {
+      out[b] = 0;
+      continue;
+    }
+#ifdef BP_DENSE_WIDE
+    if constexpr (kHasAvx2Rows<T>) {
+      if (k == BlockKernel::kAvx2) {
+        out[b] = boxes.in[b] & Avx2Rows<T>::template Block<kAxes>(block, boxes.lo[b], boxes.hi[b]);
+        continue;
+      }
+    }
+#endif
+    out[b] = boxes.in[b] & PortableBlock<T, kAxes>(block, boxes.lo[b], boxes.hi[b]);
+  }
+  (void)k;
+}
+
 }  // namespace bp::detail

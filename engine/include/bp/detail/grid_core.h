@@ -165,9 +165,9 @@ class GridCore : private GridSizing<Cell> {
   using Base::beside_ran_;
   using Base::BesideRan;
   using Base::bin_begin_;
-  using Base::bin_large_;
   using Base::BinRange;
   using Base::bins_stale_;
+  using Base::blocks_;
   using Base::cell_of_;
   using Base::cell_size_;
   using Base::cell_work_;
@@ -195,6 +195,8 @@ class GridCore : private GridSizing<Cell> {
   using Base::GroupUpdates;
   using Base::InsertObjects;
   using Base::kAxes;
+  using Base::kBlockSlots;
+  using Base::kMasks;
   using Base::kNone;
   using Base::kUnpaired;
   using Base::large_;

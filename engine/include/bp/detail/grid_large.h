@@ -4,11 +4,11 @@
 // bin a block of 2^bin_shift_ cells per axis; cells beyond the bins' range map to the edge
 // bins): a large object in every bin its cell range touches. A changed small object is tested
 // against the large objects listed in the bins of its old and new cell ranges (the
-// candidates): the bins are few and small, so they stay in the cache where per-cell lists, read
-// from cold cell records, each cost a miss. A changed large object is rescanned against the
-// objects of the cells it covers and against the other large objects (Rescan, at the end of
-// the routing). Each large object keeps its witnessed partners; for large pairs both sides hold
-// each other and count once.
+// candidates), 16 at a time and each once (TestLargeInBins): the bins are few and small, so
+// they stay in the cache where per-cell lists, read from cold cell records, each cost a miss. A
+// changed large object is rescanned against the objects of the cells it covers and against the
+// other large objects (Rescan, at the end of the routing). Each large object keeps its witnessed
+// partners; for large pairs both sides hold each other and count once.
 //
 // Binning is monotone on every axis, so a small object whose cell range overlaps a large
 // object's shares a bin with it whatever the bins' origin and size: the bins are only rebuilt
@@ -28,10 +28,13 @@
 
 #include <algorithm>
 #include <array>
+#include <bit>
 #include <cstdint>
 #include <limits>
+#include <utility>
 #include <vector>
 
+#include "bp/detail/dense_kernels.h"
 #include "bp/detail/flat_set.h"
 #include "bp/detail/grid_witness.h"
 
@@ -48,11 +51,13 @@ class GridLargeSet : public GridWitness<Cell> {
   using Base::kAxes;
   using Base::kNone;
   using Base::objects_;
+  using Base::Prefetch;
   using Base::tests_;
   using Base::tracker_;
   using Base::Witness;
   using typename Base::BoxType;
   using typename Base::CellCoord;
+  using typename Base::Coord;
   using typename Base::Object;
   using typename Base::Options;
   using typename Base::Space;
@@ -75,7 +80,6 @@ class GridLargeSet : public GridWitness<Cell> {
     } else {
       l = static_cast<uint32_t>(large_.size());
       large_.emplace_back();
-      large_stamp_.push_back(0);
     }
     large_[l].handle = h;
     Object& o = objects_[h];
@@ -122,10 +126,6 @@ class GridLargeSet : public GridWitness<Cell> {
     }
   }
 
-  void BeginLargeCandidates() {
-    NextEpoch(&large_epoch_, &large_stamp_, nullptr);
-    candidates_.clear();
-  }
   // Stamps are compared with an epoch; when it wraps, the stamps restart from zero.
   static void NextEpoch(uint32_t* epoch, std::vector<uint32_t>* a, std::vector<uint32_t>* b) {
     if (++*epoch != 0) return;
@@ -133,44 +133,62 @@ class GridLargeSet : public GridWitness<Cell> {
     if (b != nullptr) std::fill(b->begin(), b->end(), 0);
     *epoch = 1;
   }
-  // The large objects listed in the bins of h's current cell range, each once.
-  void AddLargeCandidates(uint32_t h) {
+
+  // Brings the pairs of small object h with the large objects up to date (h dead: removes
+  // them). `before` is h's box at the last query (nullptr: h was in no partner set), and
+  // [then_lo, then_hi] its cell range then; its record holds the box and range now. Which
+  // pairs h had tells `before` without a look-up.
+  // The candidates are the large objects listed in the bins of the two ranges' union, tested 16
+  // at a time (a block of a bin, BlockOverlaps) against both boxes; a large object listed in
+  // several of those bins is taken in one only, the first on every axis of the bins it shares
+  // with the union (the block's owned masks), so no candidate counts twice. Only a candidate
+  // whose overlap differs then and now is looked at alone: one changed in this query (or
+  // erased) is skipped, its rescan settles its pairs; for the others the change waits in
+  // large_changes_ until the routing ends (ApplyLargeChanges).
+  void TestLargeInBins(uint32_t h, const BoxType* before, const CellCoord& then_lo,
+                       const CellCoord& then_hi) {
+    if (bin_begin_.size() < 2) return;  // no bins: every large object is new in this query
     const Object& o = objects_[h];
-    std::array<uint32_t, kAxes> lo, hi;
-    BinRange(o.lo, o.hi, &lo, &hi);
-    ForEachBin(lo, hi, [&](uint32_t bin) {
+    std::array<uint32_t, kAxes> blo, bhi;
+    for (size_t a = 0; a < kAxes; ++a) {
+      blo[a] = BinOf(std::min(then_lo[a], o.lo[a]), a);
+      bhi[a] = BinOf(std::max(then_hi[a], o.hi[a]), a);
+    }
+    // Box 0: now (if alive), box 1: then (if h had pairs).
+    BlockBoxes<Coord, kAxes> boxes{
+        {o.box.lo.data(), o.box.lo.data()},
+        {o.box.hi.data(), o.box.hi.data()},
+        {o.state == State::kLive ? 1u : 0u, before != nullptr ? 1u : 0u}};
+    if (before != nullptr) {
+      boxes.lo[1] = before->lo.data();
+      boxes.hi[1] = before->hi.data();
+    }
+    const uint32_t live[2] = {boxes.in[0], boxes.in[1]};
+    uint32_t blocks = 0;
+    ForEachBin(blo, bhi, [&](uint32_t bin, const std::array<uint32_t, kAxes>& at) {
+      uint32_t beyond = 0;  // the axes on which this bin is past the union's first
+      for (size_t a = 0; a < kAxes; ++a) beyond |= static_cast<uint32_t>(at[a] != blo[a]) << a;
       for (uint32_t k = bin_begin_[bin]; k < bin_begin_[bin + 1]; ++k) {
-        const uint32_t l = bin_large_[k];
-        if (large_stamp_[l] != large_epoch_) {
-          large_stamp_[l] = large_epoch_;
-          candidates_.push_back(l);
+        const LargeBlock& block = blocks_[k];
+        const uint32_t own = block.owned[beyond];
+        boxes.in[0] = own & (0u - live[0]);
+        boxes.in[1] = own & (0u - live[1]);
+        uint32_t bits[2];
+        BlockOverlaps<Coord, kAxes>(block_kernel_, block.rows, boxes, bits);
+        ++blocks;
+        const uint32_t now = bits[0];
+        for (uint32_t diff = now ^ bits[1]; diff != 0; diff &= diff - 1) {
+          const auto i = static_cast<uint32_t>(std::countr_zero(diff));
+          const uint32_t l = block.large[i];
+          const Large& lg = large_[l];
+          if (lg.changed || lg.handle == kNone || !tracker_.Accepts(h, lg.handle)) continue;
+          large_changes_.push_back(LargeChange{l, h, ((now >> i) & 1u) != 0});
         }
       }
     });
-  }
-  // Brings the pairs of small object h with the candidates up to date (h dead: removes them).
-  // `before` is h's box at the last query (nullptr: h was in no partner set), which tells
-  // whether h is a candidate's partner without a look-up. A candidate changed in this query
-  // (or erased: its slot is free or changed) is skipped: its rescan settles its pairs. A change
-  // waits in large_changes_ until the routing ends (ApplyLargeChanges).
-  // The tests are branch-free: whether a moved object overlaps a large one then and now is
-  // unpredictable per axis, and a short-circuit test mispredicted often enough to take most of
-  // a frame's routing; that the two agree is predictable.
-  void TestLargeCandidates(uint32_t h, const BoxType* before) {
-    const uint32_t alive = objects_[h].state == State::kLive ? 1u : 0u;
-    const BoxType& box = objects_[h].box;
-    const BoxType& then = before != nullptr ? *before : box;
-    const uint32_t was = before != nullptr ? 1u : 0u;
-    for (uint32_t l : candidates_) {
-      Large& lg = large_[l];
-      if (lg.changed || lg.handle == kNone || !tracker_.Accepts(h, lg.handle)) continue;
-      const BoxType& lbox = objects_[lg.handle].box;
-      ++tests_;
-      const uint32_t now = alive & OverlapsBranchFree(box, lbox);
-      const uint32_t had = was & OverlapsBranchFree(then, lbox);
-      if (had == now) continue;
-      large_changes_.push_back(LargeChange{l, h, now != 0});
-    }
+    // Counted as the dense cell counts: each block tested, a test per slot and box.
+    const uint32_t tested = blocks * static_cast<uint32_t>(kBlockSlots) * (live[0] + live[1]);
+    tests_ += tested;
   }
 
   // Applies the candidate tests' changes to the partner sets, grouped by large object (each
@@ -185,7 +203,13 @@ class GridLargeSet : public GridWitness<Cell> {
     for (size_t l = 0; l < large_.size(); ++l) begin[l + 1] += begin[l];
     sorted_changes_.resize(large_changes_.size());
     for (const LargeChange& c : large_changes_) sorted_changes_[begin[c.large]++] = c;
-    for (const LargeChange& c : sorted_changes_) {
+    const size_t n = sorted_changes_.size();
+    for (size_t k = 0; k < n; ++k) {
+      if (k + 8 < n) {  // the partner sets are large: their slots are all over the memory
+        const LargeChange& ahead = sorted_changes_[k + 8];
+        if (const void* line = large_[ahead.large].partners.HomeLine(ahead.h)) Prefetch(line);
+      }
+      const LargeChange& c = sorted_changes_[k];
       Large& lg = large_[c.large];
       if (lg.changed || lg.handle == kNone) continue;
       const bool done = c.now ? lg.partners.Insert(c.h) : lg.partners.Erase(c.h);
@@ -195,15 +219,6 @@ class GridLargeSet : public GridWitness<Cell> {
     }
     large_changes_.clear();
   }
-  // Overlaps (closed intervals) on every axis without branches (valid boxes: no NaN).
-  static uint32_t OverlapsBranchFree(const BoxType& a, const BoxType& b) {
-    uint32_t ok = 1;
-    for (size_t i = 0; i < kAxes; ++i) {
-      ok &= static_cast<uint32_t>(a.lo[i] <= b.hi[i]) & static_cast<uint32_t>(b.lo[i] <= a.hi[i]);
-    }
-    return ok;
-  }
-
   // Sets a changed large object's partners to exactly the live objects overlapping it: the small
   // ones in the cells its range covers and the other large ones.
   void Rescan(uint32_t l) {
@@ -288,7 +303,7 @@ class GridLargeSet : public GridWitness<Cell> {
     const int64_t b = (c - bin_origin_[a]) >> bin_shift_;
     return static_cast<uint32_t>(std::clamp<int64_t>(b, 0, int64_t{bins_[a]} - 1));
   }
-  // Calls f(bin index) for each bin of a bin range, row-major.
+  // Calls f(bin index, bin coordinates) for each bin of a bin range, row-major.
   template <class F>
   void ForEachBin(const std::array<uint32_t, kAxes>& lo, const std::array<uint32_t, kAxes>& hi,
                   F&& f) const {
@@ -297,7 +312,7 @@ class GridLargeSet : public GridWitness<Cell> {
     while (true) {
       uint32_t index = 0;
       for (size_t a = kAxes; a-- > 0;) index = index * bins_[a] + at[a];
-      f(index);
+      f(index, std::as_const(at));
       size_t a = 0;
       while (a < kAxes && at[a] == hi[a]) {
         at[a] = lo[a];
@@ -307,13 +322,15 @@ class GridLargeSet : public GridWitness<Cell> {
       ++at[a];
     }
   }
-  // Lays the bins over the cells in use (at most kMaxBins: 2^bin_shift_ cells per bin and axis,
-  // the smallest power of two that fits) and lists every live large object in the bins its cell
-  // range touches. O(cells + the bins the large objects touch).
+  // Lays the bins over the cells in use and lists every live large object in the blocks of the
+  // bins its cell range touches. The bins are 2^bin_shift_ cells wide: the finest width at which
+  // there are at most kMaxBins bins and the entries fill a block per bin on average (a bin's
+  // blocks are tested whole, so bins emptier than a block only cost more bins per object and more
+  // memory). O(cells + large objects x widths tried + the bins the large objects touch).
   void RebuildBins() {
     bins_stale_ = false;
     bin_begin_.clear();
-    bin_large_.clear();
+    blocks_.clear();
     if (large_count_ == 0) return;
     CellCoord lo, hi;
     lo.fill(std::numeric_limits<typename Space::Scalar>::max());
@@ -332,41 +349,76 @@ class GridLargeSet : public GridWitness<Cell> {
     }
     bin_shift_ = 0;
     while ((((span - 1) >> bin_shift_) + 1) > kBinsPerAxis) ++bin_shift_;
-    size_t total = 1;
-    for (size_t a = 0; a < kAxes; ++a) {
-      bin_origin_[a] = lo[a];
-      bins_[a] = static_cast<uint32_t>(
-          ((static_cast<uint64_t>(int64_t{hi[a]} - lo[a])) >> bin_shift_) + 1);
-      total *= bins_[a];
-    }
-    // Counting sort of (bin, large) entries into bin_begin_ / bin_large_.
-    bin_begin_.assign(total + 1, 0);
     std::array<uint32_t, kAxes> blo, bhi;
+    for (;; ++bin_shift_) {
+      size_t total = 1;
+      for (size_t a = 0; a < kAxes; ++a) {
+        bin_origin_[a] = lo[a];
+        bins_[a] = static_cast<uint32_t>(
+            ((static_cast<uint64_t>(int64_t{hi[a]} - lo[a])) >> bin_shift_) + 1);
+        total *= bins_[a];
+      }
+      if (total == 1) break;
+      size_t entries = 0;
+      bin_begin_.assign(2, 0);  // BinRange's "bins present"
+      for (const Large& lg : large_) {
+        if (lg.handle == kNone) continue;
+        BinRange(objects_[lg.handle].lo, objects_[lg.handle].hi, &blo, &bhi);
+        size_t n = 1;
+        for (size_t a = 0; a < kAxes; ++a) n *= bhi[a] - blo[a] + 1;
+        entries += n;
+      }
+      if (entries >= kBlockSlots * total) break;
+    }
+    size_t total = 1;
+    for (size_t a = 0; a < kAxes; ++a) total *= bins_[a];
+    // Entries per bin, then blocks per bin (bin_begin_: prefix sums of blocks).
+    std::vector<uint32_t>& count = scratch_;
+    count.assign(total, 0);
+    bin_begin_.assign(2, 0);
     for (const Large& lg : large_) {
       if (lg.handle == kNone) continue;
       BinRange(objects_[lg.handle].lo, objects_[lg.handle].hi, &blo, &bhi);
-      ForEachBin(blo, bhi, [&](uint32_t bin) { ++bin_begin_[bin + 1]; });
+      ForEachBin(blo, bhi, [&](uint32_t bin, const auto&) { ++count[bin]; });
     }
-    for (size_t b = 0; b < total; ++b) bin_begin_[b + 1] += bin_begin_[b];
-    bin_large_.resize(bin_begin_[total]);
-    std::vector<uint32_t>& cursor = scratch_;
-    cursor.assign(bin_begin_.begin(), bin_begin_.end() - 1);
+    bin_begin_.assign(total + 1, 0);
+    for (size_t b = 0; b < total; ++b) {
+      bin_begin_[b + 1] =
+          bin_begin_[b] + static_cast<uint32_t>((count[b] + kBlockSlots - 1) / kBlockSlots);
+      count[b] = 0;  // from here: the bin's slots filled
+    }
+    blocks_.assign(bin_begin_[total], LargeBlock{});
     for (uint32_t l = 0; l < large_.size(); ++l) {
-      if (large_[l].handle == kNone) continue;
-      BinRange(objects_[large_[l].handle].lo, objects_[large_[l].handle].hi, &blo, &bhi);
-      ForEachBin(blo, bhi, [&](uint32_t bin) { bin_large_[cursor[bin]++] = l; });
+      const uint32_t h = large_[l].handle;
+      if (h == kNone) continue;
+      const BoxType& box = objects_[h].box;
+      BinRange(objects_[h].lo, objects_[h].hi, &blo, &bhi);
+      ForEachBin(blo, bhi, [&](uint32_t bin, const std::array<uint32_t, kAxes>& at) {
+        const uint32_t slot = count[bin]++;
+        LargeBlock& block = blocks_[bin_begin_[bin] + slot / kBlockSlots];
+        const uint32_t i = slot % kBlockSlots;
+        for (size_t a = 0; a < kAxes; ++a) {
+          block.rows[2 * a * kBlockSlots + i] = box.lo[a];
+          block.rows[(2 * a + 1) * kBlockSlots + i] = box.hi[a];
+        }
+        block.large[i] = l;
+        uint32_t starts = 0;  // the axes on which l's bin range starts at this bin
+        for (size_t a = 0; a < kAxes; ++a) starts |= static_cast<uint32_t>(at[a] == blo[a]) << a;
+        for (uint32_t m = 0; m < kMasks; ++m) {
+          if ((starts & m) == m) block.owned[m] = static_cast<uint16_t>(block.owned[m] | 1u << i);
+        }
+      });
     }
   }
   // Drops the whole set (a rebuild: see GridSizing::Regrid).
   void ClearLarge() {
     large_.clear();
-    large_stamp_.clear();
     free_large_.clear();
     changed_large_.clear();
     large_changes_.clear();
     large_count_ = 0;
     bin_begin_.clear();
-    bin_large_.clear();
+    blocks_.clear();
     bins_stale_ = false;
   }
 
@@ -379,9 +431,25 @@ class GridLargeSet : public GridWitness<Cell> {
                                                         : 4;
 
   std::vector<Large> large_;
-  // The bins (invariant 1): bin b lists bin_large_[bin_begin_[b], bin_begin_[b + 1]); bins_[a]
-  // bins on axis a from cell bin_origin_[a], 2^bin_shift_ cells each. No bins: bin_begin_ empty.
-  std::vector<uint32_t> bin_begin_, bin_large_;
+  // The bins (invariant 1): bin b lists its large objects in blocks_[bin_begin_[b],
+  // bin_begin_[b + 1]); bins_[a] bins on axis a from cell bin_origin_[a], 2^bin_shift_ cells
+  // each. No bins: bin_begin_ empty.
+  // A block holds up to kBlockSlots large objects of one bin as the box-test kernels read them
+  // (BlockOverlaps: 2 K rows of kBlockSlots coordinates, lo and hi per axis; the boxes as at the
+  // last rebuild), their indices in large_, and owned[m]: the slots in use whose large object's
+  // bin range starts at this bin on every axis in m (bit a: axis a). A small object whose bin
+  // range (of the union of its ranges then and now) starts before this bin on exactly the axes
+  // in m owns those slots here: of the bins the two ranges share, this is the first.
+  static constexpr size_t kBlockSlots = 16;
+  static constexpr uint32_t kMasks = uint32_t{1} << kAxes;
+  struct alignas(64) LargeBlock {
+    Coord rows[2 * kAxes * kBlockSlots];
+    uint32_t large[kBlockSlots];
+    uint16_t owned[kMasks];
+  };
+  std::vector<uint32_t> bin_begin_;
+  std::vector<LargeBlock> blocks_;
+  const BlockKernel block_kernel_ = ResolveBlockKernel<Coord>();
   std::array<uint32_t, kAxes> bins_{};
   std::array<int64_t, kAxes> bin_origin_{};
   uint32_t bin_shift_ = 0;
@@ -392,9 +460,7 @@ class GridLargeSet : public GridWitness<Cell> {
   // Scratch of the large-object paths.
   std::vector<uint32_t> stamp_, mark_;  // by global handle, against epoch_ (sized by Rescan)
   uint32_t epoch_ = 0;
-  std::vector<uint32_t> large_stamp_;  // by large index, against large_epoch_
-  uint32_t large_epoch_ = 0;
-  std::vector<uint32_t> candidates_, found_, scratch_;
+  std::vector<uint32_t> found_, scratch_;
   // A small object's change of status with an unchanged large object, found by the candidate
   // tests, applied after the routing (ApplyLargeChanges).
   struct LargeChange {

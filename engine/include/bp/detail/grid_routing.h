@@ -71,14 +71,12 @@ class GridRouting : public GridLargeSet<Cell> {
   using Base::Reserve;
   using Base::unpaired_;
   // The large set and the witness counts.
-  using Base::AddLargeCandidates;
-  using Base::BeginLargeCandidates;
   using Base::EraseLarge;
   using Base::InsertLarge;
   using Base::large_;
   using Base::large_count_;
   using Base::MoveLarge;
-  using Base::TestLargeCandidates;
+  using Base::TestLargeInBins;
   using Base::Witness;
 
   explicit GridRouting(const Options& options) : Base(options) {}
@@ -139,11 +137,7 @@ class GridRouting : public GridLargeSet<Cell> {
       return;
     }
     EnterCells(h, lo, hi);
-    if (large_count_ != 0) {
-      BeginLargeCandidates();
-      AddLargeCandidates(h);
-      TestLargeCandidates(h, nullptr);
-    }
+    if (large_count_ != 0) TestLargeInBins(h, nullptr, lo, hi);
   }
 
   // Churn picks its victims anywhere in the table: each erased object's records are prefetched
@@ -182,11 +176,8 @@ class GridRouting : public GridLargeSet<Cell> {
       EraseLarge(h);
       return;
     }
-    if (large_count_ != 0) {
-      BeginLargeCandidates();
-      AddLargeCandidates(h);
-      TestLargeCandidates(h, &objects_[h].box);  // dead: every listed pair goes
-    }
+    // Dead: every pair it had goes.
+    if (large_count_ != 0) TestLargeInBins(h, &objects_[h].box, o.lo, o.hi);
     LeaveCells(h);
   }
 
@@ -221,11 +212,7 @@ class GridRouting : public GridLargeSet<Cell> {
       }
       EraseLarge(h);  // and back into the cells as a small object
       EnterCells(h, lo, hi);
-      if (large_count_ != 0) {
-        BeginLargeCandidates();
-        AddLargeCandidates(h);
-        TestLargeCandidates(h, nullptr);
-      }
+      if (large_count_ != 0) TestLargeInBins(h, nullptr, lo, hi);
       return;
     }
     if (large_now) {
@@ -238,19 +225,14 @@ class GridRouting : public GridLargeSet<Cell> {
       InsertLarge(h, lo, hi);
       return;
     }
-    const bool with_large = large_count_ != 0;
-    if (with_large) {
-      BeginLargeCandidates();
-      AddLargeCandidates(h);
-    }
     BP_ASSERT(!kept_routed || !same_range);
+    const CellCoord then_lo = o.lo, then_hi = o.hi;
     if (same_range) {
       for (uint32_t i = 0; i < o.nrefs; ++i) RouteUpdate(refs_[o.refs + i], box);
     } else {
       Migrate(h, lo, hi, kept_routed);
-      if (with_large) AddLargeCandidates(h);
     }
-    if (with_large) TestLargeCandidates(h, &before);
+    if (large_count_ != 0) TestLargeInBins(h, &before, then_lo, then_hi);
   }
 
   // A small object's new cell range differs: update it in the cells it keeps, insert it into
@@ -359,6 +341,10 @@ class GridRouting : public GridLargeSet<Cell> {
   // (object and box, then its cell references). An update that stays in its cells touches no
   // cell here: it is appended to routed_ (see RouteUpdate). With a pool, see RouteOnPool.
   void RouteUpdates(std::span<const HandleBox<kDim, Coord>> updates) {
+    if (large_count_ != 0) {
+      RouteUpdatesBesideLarge(updates);
+      return;
+    }
     const size_t n = updates.size();
     routed_.reserve(n);
     for (size_t i = 0; i < n; ++i) {
@@ -377,6 +363,31 @@ class GridRouting : public GridLargeSet<Cell> {
         // (in about half its instructions: no new range, cell count or large-object checks).
         o.box = box;
         for (uint32_t k = 0; k < o.nrefs; ++k) RouteUpdate(refs_[o.refs + k], box);
+        continue;
+      }
+      UpdateObject(h, box);
+    }
+  }
+
+  // RouteUpdates while large objects exist: as its loop (which stays as short as it is for the
+  // scenes without them), with the large objects' candidate tests on the common path too.
+  void RouteUpdatesBesideLarge(std::span<const HandleBox<kDim, Coord>> updates) {
+    const size_t n = updates.size();
+    routed_.reserve(n);
+    for (size_t i = 0; i < n; ++i) {
+      BP_GRID_PREFETCH_UPDATE(updates, i, n);
+      if (i + 8 < n && cell_work_.size() > kWorkInCache) {
+        const Object& ahead = objects_[updates[i + 8].handle];
+        if (ahead.nrefs != 0) Prefetch(&cell_work_[refs_[ahead.refs].cell]);
+      }
+      const auto& [h, box] = updates[i];
+      Object& o = objects_[h];
+      BP_ASSERT(o.state == State::kLive);
+      if (StaysInCells(o, box)) {
+        const BoxType before = o.box;
+        o.box = box;
+        for (uint32_t k = 0; k < o.nrefs; ++k) RouteUpdate(refs_[o.refs + k], box);
+        TestLargeInBins(h, &before, o.lo, o.hi);
         continue;
       }
       UpdateObject(h, box);

@@ -168,24 +168,51 @@ Status GridCore<Cell>::ValidateLargeSet(const std::vector<uint32_t>& live,
   if (!large_changes_.empty()) return Invalid("large-object changes left after a query");
   if (large_count_ != 0 && bin_begin_.size() < 2) return Invalid("large objects without bins");
   if (!bin_begin_.empty()) {
-    // Each live large object once in every bin its range touches, and nothing else listed.
-    std::vector<uint32_t> listed(bin_large_.size(), 0);
-    std::array<uint32_t, kAxes> blo, bhi;
-    size_t expected = 0;
-    bool ok = bin_begin_.back() == bin_large_.size();
+    // Each live large object once in every bin its range touches, with its box and owned bits,
+    // and nothing else listed.
+    bool ok = bin_begin_.back() == blocks_.size();
     for (size_t b = 0; b + 1 < bin_begin_.size() && ok; ++b)
       ok = bin_begin_[b] <= bin_begin_[b + 1];
+    if (!ok) return Invalid("large bins' blocks out of order");
+    std::vector<uint32_t> listed(large_.size(), 0);
+    for (size_t k = 0; k < blocks_.size() && ok; ++k) {
+      for (uint32_t i = 0; i < kBlockSlots; ++i) {
+        const bool used = (blocks_[k].owned[0] >> i) & 1u;
+        ok = ok && (!used || (blocks_[k].large[i] < large_.size() &&
+                              large_[blocks_[k].large[i]].handle != kNone));
+        if (used && ok) ++listed[blocks_[k].large[i]];
+      }
+    }
+    std::array<uint32_t, kAxes> blo, bhi;
     for (uint32_t l = 0; l < large_.size() && ok; ++l) {
       if (large_[l].handle == kNone) continue;
-      BinRange(objects_[large_[l].handle].lo, objects_[large_[l].handle].hi, &blo, &bhi);
-      ForEachBin(blo, bhi, [&](uint32_t bin) {
-        ++expected;
-        const auto first = bin_large_.begin() + bin_begin_[bin];
-        const auto last = bin_large_.begin() + bin_begin_[bin + 1];
-        ok = ok && std::count(first, last, l) == 1;
+      const Object& o = objects_[large_[l].handle];
+      BinRange(o.lo, o.hi, &blo, &bhi);
+      uint32_t bins = 0;
+      ForEachBin(blo, bhi, [&](uint32_t bin, const std::array<uint32_t, kAxes>& at) {
+        ++bins;
+        uint32_t starts = 0;
+        for (size_t a = 0; a < kAxes; ++a) starts |= static_cast<uint32_t>(at[a] == blo[a]) << a;
+        uint32_t found = 0;
+        for (uint32_t k = bin_begin_[bin]; k < bin_begin_[bin + 1]; ++k) {
+          const auto& block = blocks_[k];
+          for (uint32_t i = 0; i < kBlockSlots; ++i) {
+            if (((block.owned[0] >> i) & 1u) == 0 || block.large[i] != l) continue;
+            ++found;
+            for (size_t a = 0; a < kAxes; ++a) {
+              ok = ok && block.rows[2 * a * kBlockSlots + i] == o.box.lo[a] &&
+                   block.rows[(2 * a + 1) * kBlockSlots + i] == o.box.hi[a];
+            }
+            for (uint32_t m = 0; m < kMasks; ++m) {
+              ok = ok && ((block.owned[m] >> i) & 1u) == ((starts & m) == m ? 1u : 0u);
+            }
+          }
+        }
+        ok = ok && found == 1;
       });
+      ok = ok && listed[l] == bins;
     }
-    if (!ok || expected != bin_large_.size()) return Invalid("large bins differ from the set");
+    if (!ok) return Invalid("large bins differ from the set");
   }
   for (uint32_t l = 0; l < large_.size(); ++l) {
     const Large& lg = large_[l];
