@@ -146,8 +146,19 @@ TEST(Grid, CrowdedLargeObjectBinsCountEachPairOnce) {
   GridDenseOptions dense;
   dense.cell_size = 2;
   dense.max_cells_per_object = 8;
-  GridDense<3, float> dense_engine(dense);
-  CrowdedBins<3, float>(&dense_engine);
+  // Every block-test kernel this CPU runs gives the same events.
+  for (detail::BlockKernel k :
+       {detail::BlockKernel::kWide, detail::BlockKernel::kAvx2, detail::BlockKernel::kPortable}) {
+    if ((k == detail::BlockKernel::kWide && !detail::CpuHasAvx512()) ||
+        (k == detail::BlockKernel::kAvx2 && !detail::CpuHasAvx2())) {
+      continue;
+    }
+    SCOPED_TRACE(static_cast<int>(k));
+    GridDense<3, float> dense_engine(dense);
+    detail::GridTestPeer::SetBlockKernel(
+        const_cast<detail::GridCore<detail::DenseCellCore<3, float>>&>(dense_engine.core()), k);
+    CrowdedBins<3, float>(&dense_engine);
+  }
   GridSegmentedSapOptions sap;
   sap.cell_size = 2;
   sap.max_cells_per_object = 8;

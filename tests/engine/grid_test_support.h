@@ -107,6 +107,11 @@ struct GridTestPeer {
   }
 
   // Drops the last entry of the large-object bins (detail/grid_large.h).
+  // Forces the large set's block tests onto kernel k (one this CPU runs).
+  template <class Core>
+  static void SetBlockKernel(Core& core, BlockKernel k) {
+    core.block_kernel_ = k;
+  }
   template <class Core>
   static void DropLargeBinEntry(Core& core) {
     // The last listed entry's slot falls out of every owned mask.

@@ -148,6 +148,39 @@ class GridLargeSet : public GridWitness<Cell> {
   void TestLargeInBins(uint32_t h, const BoxType* before, const CellCoord& then_lo,
                        const CellCoord& then_hi) {
     if (bin_begin_.size() < 2) return;  // no bins: every large object is new in this query
+#ifdef BP_DENSE_WIDE
+    if constexpr (kHasWideRows<Coord>) {
+      if (block_kernel_ == BlockKernel::kWide) {
+        TestLargeInBinsWide(h, before, then_lo, then_hi);
+        return;
+      }
+    }
+#endif
+    ScanLargeBins(h, before, then_lo, then_hi,
+                  [this](const Coord* rows, const auto& boxes, uint32_t* bits) {
+                    BlockOverlaps<Coord, kAxes>(block_kernel_, rows, boxes, bits);
+                  });
+  }
+#ifdef BP_DENSE_WIDE
+  // The scan compiled for AVX-512 as a whole, so that the kernel is inlined into it (a call
+  // into a function of another target is not inlined).
+  BP_WIDE_TARGET void TestLargeInBinsWide(uint32_t h, const BoxType* before,
+                                          const CellCoord& then_lo, const CellCoord& then_hi) {
+    ScanLargeBins(h, before, then_lo, then_hi, WideKernel{});
+  }
+  struct WideKernel {
+    BP_WIDE_TARGET void operator()(const Coord* rows, const BlockBoxes<Coord, kAxes>& boxes,
+                                   uint32_t* bits) const {
+      WideBlockBoxes<Coord, kAxes>(rows, boxes, bits);
+    }
+  };
+#endif
+  // TestLargeInBins' scan, with kernel(rows, boxes, bits) the block test. Inlined into each
+  // caller (written without lambdas, which would not take the wide caller's target).
+  template <class Kernel>
+  [[gnu::always_inline]] inline void ScanLargeBins(uint32_t h, const BoxType* before,
+                                                   const CellCoord& then_lo,
+                                                   const CellCoord& then_hi, Kernel kernel) {
     const Object& o = objects_[h];
     std::array<uint32_t, kAxes> blo, bhi;
     for (size_t a = 0; a < kAxes; ++a) {
@@ -165,16 +198,20 @@ class GridLargeSet : public GridWitness<Cell> {
     }
     const uint32_t live[2] = {boxes.in[0], boxes.in[1]};
     uint32_t blocks = 0;
-    ForEachBin(blo, bhi, [&](uint32_t bin, const std::array<uint32_t, kAxes>& at) {
-      uint32_t beyond = 0;  // the axes on which this bin is past the union's first
-      for (size_t a = 0; a < kAxes; ++a) beyond |= static_cast<uint32_t>(at[a] != blo[a]) << a;
+    std::array<uint32_t, kAxes> at = blo;  // the bins of [blo, bhi], row-major (as ForEachBin)
+    while (true) {
+      uint32_t bin = 0, beyond = 0;  // beyond: the axes on which this bin is past blo
+      for (size_t a = kAxes; a-- > 0;) {
+        bin = bin * bins_[a] + at[a];
+        beyond |= static_cast<uint32_t>(at[a] != blo[a]) << a;
+      }
       for (uint32_t k = bin_begin_[bin]; k < bin_begin_[bin + 1]; ++k) {
         const LargeBlock& block = blocks_[k];
         const uint32_t own = block.owned[beyond];
         boxes.in[0] = own & (0u - live[0]);
         boxes.in[1] = own & (0u - live[1]);
         uint32_t bits[2];
-        BlockOverlaps<Coord, kAxes>(block_kernel_, block.rows, boxes, bits);
+        kernel(block.rows, boxes, bits);
         ++blocks;
         const uint32_t now = bits[0];
         for (uint32_t diff = now ^ bits[1]; diff != 0; diff &= diff - 1) {
@@ -185,10 +222,16 @@ class GridLargeSet : public GridWitness<Cell> {
           large_changes_.push_back(LargeChange{l, h, ((now >> i) & 1u) != 0});
         }
       }
-    });
+      size_t a = 0;
+      while (a < kAxes && at[a] == bhi[a]) {
+        at[a] = blo[a];
+        ++a;
+      }
+      if (a == kAxes) break;
+      ++at[a];
+    }
     // Counted as the dense cell counts: each block tested, a test per slot and box.
-    const uint32_t tested = blocks * static_cast<uint32_t>(kBlockSlots) * (live[0] + live[1]);
-    tests_ += tested;
+    tests_ += blocks * static_cast<uint32_t>(kBlockSlots) * (live[0] + live[1]);
   }
 
   // Applies the candidate tests' changes to the partner sets, grouped by large object (each
@@ -449,7 +492,7 @@ class GridLargeSet : public GridWitness<Cell> {
   };
   std::vector<uint32_t> bin_begin_;
   std::vector<LargeBlock> blocks_;
-  const BlockKernel block_kernel_ = ResolveBlockKernel<Coord>();
+  BlockKernel block_kernel_ = ResolveBlockKernel<Coord>();  // tests may force a narrower one
   std::array<uint32_t, kAxes> bins_{};
   std::array<int64_t, kAxes> bin_origin_{};
   uint32_t bin_shift_ = 0;
