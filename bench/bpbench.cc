@@ -51,6 +51,7 @@ struct Config {
   std::string coord = "float";
   std::string sort = "auto";
   std::string variant;  // a label for the figure sweeps
+  std::string label;    // --label: a name for the run, copied into its JSON line
   uint32_t chunk = 32;
   uint32_t presorted_min = bp::SegmentedSapOptions().presorted_min;
   double global_fraction = -1;  // < 0: the engine's default
@@ -406,6 +407,7 @@ void PrintJson(const std::string& scenario, const SceneParams& p, int frames, co
     o << ",\"sort\":\"" << cfg.sort << "\",\"global_fraction\":" << fraction;
   }
   if (!cfg.variant.empty()) o << ",\"variant\":\"" << cfg.variant << "\"";
+  if (!cfg.label.empty()) o << ",\"label\":\"" << cfg.label << "\"";
   if (cfg.static_rest) o << ",\"static_rest\":true";
   if (cfg.unpaired_every != 0) o << ",\"unpaired_every\":" << cfg.unpaired_every;
   if (cfg.shape != "uniform") o << ",\"shape\":\"" << cfg.shape << "\"";
@@ -736,6 +738,14 @@ int main(int argc, char** argv) {
       ->check(CLI::Range(0.0, 1e6))
       ->capture_default_str();
   app.add_flag("--world-box", cfg.world_box, "add one static box covering the whole scene");
+  app.add_option("--label", cfg.label, "a name for the run, copied into its JSON line as \"label\"")
+      ->check([](const std::string& v) -> std::string {
+        return v.find_first_of("\"\\") == std::string::npos &&
+                       std::all_of(v.begin(), v.end(),
+                                   [](char c) { return static_cast<unsigned char>(c) >= 0x20; })
+                   ? std::string()
+                   : "a label holds no quote, backslash or control character";
+      });
   app.add_option("--margin", cfg.margin,
                  "fattened boxes: margin in cube widths (0: exact); reports false positives and "
                  "negatives per frame against an exact engine run alongside (untimed)")
