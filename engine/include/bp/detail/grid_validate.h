@@ -177,7 +177,7 @@ Status GridCore<Cell>::ValidateLargeSet(const std::vector<uint32_t>& live,
     std::vector<uint32_t> listed(large_.size(), 0);
     for (size_t k = 0; k < blocks_.size() && ok; ++k) {
       for (uint32_t i = 0; i < kBlockSlots; ++i) {
-        const bool used = (blocks_[k].owned[0] >> i) & 1u;
+        const bool used = (uint32_t{blocks_[k].owned[0]} >> i) & 1u;
         ok = ok && (!used || (blocks_[k].large[i] < large_.size() &&
                               large_[blocks_[k].large[i]].handle != kNone));
         if (used && ok) ++listed[blocks_[k].large[i]];
@@ -197,14 +197,14 @@ Status GridCore<Cell>::ValidateLargeSet(const std::vector<uint32_t>& live,
         for (uint32_t k = bin_begin_[bin]; k < bin_begin_[bin + 1]; ++k) {
           const auto& block = blocks_[k];
           for (uint32_t i = 0; i < kBlockSlots; ++i) {
-            if (((block.owned[0] >> i) & 1u) == 0 || block.large[i] != l) continue;
+            if (((uint32_t{block.owned[0]} >> i) & 1u) == 0 || block.large[i] != l) continue;
             ++found;
             for (size_t a = 0; a < kAxes; ++a) {
               ok = ok && block.rows[2 * a * kBlockSlots + i] == o.box.lo[a] &&
                    block.rows[(2 * a + 1) * kBlockSlots + i] == o.box.hi[a];
             }
             for (uint32_t m = 0; m < kMasks; ++m) {
-              ok = ok && ((block.owned[m] >> i) & 1u) == ((starts & m) == m ? 1u : 0u);
+              ok = ok && ((uint32_t{block.owned[m]} >> i) & 1u) == ((starts & m) == m ? 1u : 0u);
             }
           }
         }
