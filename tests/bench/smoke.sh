@@ -1,8 +1,8 @@
 #!/usr/bin/env bash
 # bpbench and scripts/plot end to end, small: the peer libraries compiled into this build must
 # reproduce WORKLOADS.md's golden S2a values and our engine's overlap sets; the hard scenes, the
-# float-vs-double error, Figure 2 and the error sweep must run and give well-formed lines; and
-# scripts/plot must draw every figure kind from them.
+# float-vs-double error, Figure 2, the error sweep and labelled runs must run and give
+# well-formed lines; and scripts/plot must draw every figure kind and table from them.
 #   tests/bench/smoke.sh BPBENCH PLOT OUTDIR
 set -euo pipefail
 bench="$1" plot="$2" out="$3"
@@ -32,6 +32,15 @@ fi
 "$bench" -s S1-10k -e grid_dense -r 1 -f 10 --error-vs-double --offset 1e5 >>"$json"
 "$bench" -s S2a -e grid_dense -r 1 -f 10 --margin-sweep 0.1 0.3 >>"$json"
 "$bench" --figure 2 -r 1 -f 3 --sweep-sizes 500 1000 2000 >>"$json"
+# The declarations table (scripts/results declare): labelled runs, the first label the reference.
+for round in 1 2; do
+  "$bench" -s S2a -e grid_dense -r 1 -f 4 --label "all dynamic" >>"$json"
+  "$bench" -s S2a -e grid_dense -r 1 -f 4 --unpaired-every 2 --label "half unpaired" >>"$json"
+done
+if "$bench" -s S2a -e grid_dense -r 1 -f 2 --label 'a"b' >/dev/null 2>&1; then
+  echo "bench smoke: a label with a quote should be refused" >&2
+  exit 1
+fi
 
 /usr/bin/python3 - "$json" <<'PY'
 import json, sys
@@ -69,6 +78,11 @@ PY
 for f in fig2 error hard; do
   test -s "$out/$f.png" || { echo "bench smoke: scripts/plot drew no $f.png" >&2; exit 1; }
 done
+if ! grep -q "^### What each declaration saves (S2a, grid_dense, 4 frames, 2 rounds)" \
+  "$out/tables.md" || ! grep -q "^| half unpaired | " "$out/tables.md"; then
+  echo "bench smoke: scripts/plot wrote no declarations table" >&2
+  exit 1
+fi
 if grep -q '"library"' "$json"; then
   test -s "$out/peers.png" || { echo "bench smoke: scripts/plot drew no peers.png" >&2; exit 1; }
 fi
