@@ -393,6 +393,12 @@ class GridLargeSet : public GridWitness<Cell> {
     bin_shift_ = 0;
     while ((((span - 1) >> bin_shift_) + 1) > kBinsPerAxis) ++bin_shift_;
     std::array<uint32_t, kAxes> blo, bhi;
+    const auto bin_range = [&](const Object& o) {  // BinRange, before the bins are listed
+      for (size_t a = 0; a < kAxes; ++a) {
+        blo[a] = BinOf(o.lo[a], a);
+        bhi[a] = BinOf(o.hi[a], a);
+      }
+    };
     for (;; ++bin_shift_) {
       size_t total = 1;
       for (size_t a = 0; a < kAxes; ++a) {
@@ -403,10 +409,9 @@ class GridLargeSet : public GridWitness<Cell> {
       }
       if (total == 1) break;
       size_t entries = 0;
-      bin_begin_.assign(2, 0);  // BinRange's "bins present"
       for (const Large& lg : large_) {
         if (lg.handle == kNone) continue;
-        BinRange(objects_[lg.handle].lo, objects_[lg.handle].hi, &blo, &bhi);
+        bin_range(objects_[lg.handle]);
         size_t n = 1;
         for (size_t a = 0; a < kAxes; ++a) n *= bhi[a] - blo[a] + 1;
         entries += n;
@@ -418,10 +423,9 @@ class GridLargeSet : public GridWitness<Cell> {
     // Entries per bin, then blocks per bin (bin_begin_: prefix sums of blocks).
     std::vector<uint32_t>& count = scratch_;
     count.assign(total, 0);
-    bin_begin_.assign(2, 0);
     for (const Large& lg : large_) {
       if (lg.handle == kNone) continue;
-      BinRange(objects_[lg.handle].lo, objects_[lg.handle].hi, &blo, &bhi);
+      bin_range(objects_[lg.handle]);
       ForEachBin(blo, bhi, [&](uint32_t bin, const auto&) { ++count[bin]; });
     }
     bin_begin_.assign(total + 1, 0);
@@ -435,7 +439,7 @@ class GridLargeSet : public GridWitness<Cell> {
       const uint32_t h = large_[l].handle;
       if (h == kNone) continue;
       const BoxType& box = objects_[h].box;
-      BinRange(objects_[h].lo, objects_[h].hi, &blo, &bhi);
+      bin_range(objects_[h]);
       ForEachBin(blo, bhi, [&](uint32_t bin, const std::array<uint32_t, kAxes>& at) {
         const uint32_t slot = count[bin]++;
         LargeBlock& block = blocks_[bin_begin_[bin] + slot / kBlockSlots];

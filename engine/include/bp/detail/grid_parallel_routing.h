@@ -337,6 +337,7 @@ class GridParallelRouting : public GridRouting<Cell> {
     return std::min<size_t>((uint64_t{idx} * part_mul_) >> 32, parts_ - 1);
   }
 #undef BP_GRID_PREFETCH_UPDATE  // defined in detail/grid_routing.h
+#undef BP_GRID_PREFETCH_WORK    // likewise
 
   std::vector<Shard> shards_;
   std::vector<size_t> run_begin_;  // RouteOnPool: where each routing run starts, then n

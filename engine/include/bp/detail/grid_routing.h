@@ -336,6 +336,17 @@ class GridRouting : public GridLargeSet<Cell> {
     }                                                                      \
   } while (false)
 
+  // A third stage for the serial loops, when the work table outgrows the L2: the work entry of
+  // updates[i + 8]'s first cell, which routing counts in (where the table fits, these loads
+  // only cost).
+#define BP_GRID_PREFETCH_WORK(updates, i, end)                             \
+  do {                                                                     \
+    if ((i) + 8 < (end) && cell_work_.size() > kWorkInCache) {             \
+      const Object& ahead = objects_[(updates)[(i) + 8].handle];           \
+      if (ahead.nrefs != 0) Prefetch(&cell_work_[refs_[ahead.refs].cell]); \
+    }                                                                      \
+  } while (false)
+
   // Updates come in handle order, not memory order: the loads of each object's records miss the
   // cache, so they are prefetched a few updates ahead, in the order they depend on each other
   // (object and box, then its cell references). An update that stays in its cells touches no
@@ -349,12 +360,7 @@ class GridRouting : public GridLargeSet<Cell> {
     routed_.reserve(n);
     for (size_t i = 0; i < n; ++i) {
       BP_GRID_PREFETCH_UPDATE(updates, i, n);
-      if (i + 8 < n && cell_work_.size() > kWorkInCache) {
-        // A third stage, when the work table outgrows the L2: the work entry of the object's
-        // first cell, which routing counts in (where the table fits, these loads only cost).
-        const Object& ahead = objects_[updates[i + 8].handle];
-        if (ahead.nrefs != 0) Prefetch(&cell_work_[refs_[ahead.refs].cell]);
-      }
+      BP_GRID_PREFETCH_WORK(updates, i, n);
       const auto& [h, box] = updates[i];
       Object& o = objects_[h];
       BP_ASSERT(o.state == State::kLive);
@@ -376,10 +382,7 @@ class GridRouting : public GridLargeSet<Cell> {
     routed_.reserve(n);
     for (size_t i = 0; i < n; ++i) {
       BP_GRID_PREFETCH_UPDATE(updates, i, n);
-      if (i + 8 < n && cell_work_.size() > kWorkInCache) {
-        const Object& ahead = objects_[updates[i + 8].handle];
-        if (ahead.nrefs != 0) Prefetch(&cell_work_[refs_[ahead.refs].cell]);
-      }
+      BP_GRID_PREFETCH_WORK(updates, i, n);
       const auto& [h, box] = updates[i];
       Object& o = objects_[h];
       BP_ASSERT(o.state == State::kLive);
