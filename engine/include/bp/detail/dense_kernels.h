@@ -243,10 +243,12 @@ BlockKernel ResolveBlockKernel() {
 /// Two boxes against one block: bit i of (*a)[0] is set iff bit i of in[0] is and slot i of the
 /// block (laid out as above) overlaps box 0 ([lo[0], hi[0]]) on every axis; likewise for box 1.
 /// The same bits for every kernel k.
+/// The boxes are held by value: a caller testing many blocks in a loop keeps them in registers
+/// (through pointers, every store in the loop could change them, and each block reloaded them).
 template <class T, size_t kAxes>
 struct BlockBoxes {
-  const T* lo[2];
-  const T* hi[2];
+  T lo[2][kAxes];
+  T hi[2][kAxes];
   uint32_t in[2];
 };
 #ifdef BP_DENSE_WIDE

@@ -19,6 +19,7 @@
 
 #include "bp/broadphase.h"
 #include "bp/detail/front_end_slots.h"
+#include "bp/detail/pair_sort.h"
 #include "bp/detail/worker_pool.h"
 
 namespace bp::detail {
@@ -76,9 +77,9 @@ class FrontEndEvents : public FrontEndSlots<Core, Key> {
     for (const auto& [a, b] : collides_) sink.Collide(a, b);
   }
 
-  // The keys of the drained pairs drained_[now] into collides_ (now 1) or uncollides_, sorted. The
-  // slots of a frame's pairs lie all over the table: their keys are prefetched kKeysAhead pairs
-  // ahead.
+  // The keys of the drained pairs drained_[now] into collides_ (now 1) or uncollides_, sorted
+  // (SortKeyPairs: a radix sort for a frame of many integral-keyed events). The slots of a frame's
+  // pairs lie all over the table: their keys are prefetched kKeysAhead pairs ahead.
   void ConvertDrained(size_t now) {
     const auto& drained = drained_[now];
     std::vector<std::pair<Key, Key>>* out = now == 1 ? &collides_ : &uncollides_;
@@ -93,7 +94,7 @@ class FrontEndEvents : public FrontEndSlots<Core, Key> {
       const Key& kb = slots_[drained[i].b].key;
       out->push_back(std::less<Key>()(ka, kb) ? std::make_pair(ka, kb) : std::make_pair(kb, ka));
     }
-    std::sort(out->begin(), out->end());
+    SortKeyPairs(out, &sort_scratch_[now]);
   }
 
   // Removes the pairs present in both sorted lists: a rekeyed key's pairs that it keeps.
@@ -128,6 +129,7 @@ class FrontEndEvents : public FrontEndSlots<Core, Key> {
   // Per-query buffers, kept to reuse their allocations.
   std::vector<std::pair<Key, Key>> collides_;
   std::vector<std::pair<Key, Key>> uncollides_;
+  std::array<std::vector<std::pair<Key, Key>>, 2> sort_scratch_;  // by drained_'s index
 };
 
 }  // namespace bp::detail

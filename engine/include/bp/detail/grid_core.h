@@ -200,7 +200,7 @@ class GridCore : private GridSizing<Cell> {
   using Base::kNone;
   using Base::kUnpaired;
   using Base::large_;
-  using Base::large_changes_;
+  using Base::large_change_count_;
   using Base::large_count_;
   using Base::live_;
   using Base::MaybeResize;

@@ -31,6 +31,7 @@
 #include <bit>
 #include <cstdint>
 #include <limits>
+#include <span>
 #include <utility>
 #include <vector>
 
@@ -182,23 +183,33 @@ class GridLargeSet : public GridWitness<Cell> {
                                                    const CellCoord& then_lo,
                                                    const CellCoord& then_hi, Kernel kernel) {
     const Object& o = objects_[h];
-    std::array<uint32_t, kAxes> blo, bhi;
+    // at: the bins of [blo, bhi], row-major (as ForEachBin); each element stored on its own (a
+    // copy of blo, read back whole while its parts were just stored, stalled the scan's start).
+    std::array<uint32_t, kAxes> blo, bhi, at;
+    // Box 0: now (if alive), box 1: then (if h had pairs; else a copy of now, masked out).
+    BlockBoxes<Coord, kAxes> boxes;
+    boxes.in[0] = o.state == State::kLive ? 1u : 0u;
+    boxes.in[1] = before != nullptr ? 1u : 0u;
+    const BoxType& then = before != nullptr ? *before : o.box;
     for (size_t a = 0; a < kAxes; ++a) {
-      blo[a] = BinOf(std::min(then_lo[a], o.lo[a]), a);
+      at[a] = blo[a] = BinOf(std::min(then_lo[a], o.lo[a]), a);
       bhi[a] = BinOf(std::max(then_hi[a], o.hi[a]), a);
-    }
-    // Box 0: now (if alive), box 1: then (if h had pairs).
-    BlockBoxes<Coord, kAxes> boxes{
-        {o.box.lo.data(), o.box.lo.data()},
-        {o.box.hi.data(), o.box.hi.data()},
-        {o.state == State::kLive ? 1u : 0u, before != nullptr ? 1u : 0u}};
-    if (before != nullptr) {
-      boxes.lo[1] = before->lo.data();
-      boxes.hi[1] = before->hi.data();
+      boxes.lo[0][a] = o.box.lo[a];
+      boxes.hi[0][a] = o.box.hi[a];
+      boxes.lo[1][a] = then.lo[a];
+      boxes.hi[1][a] = then.hi[a];
     }
     const uint32_t live[2] = {boxes.in[0], boxes.in[1]};
+    // Room for every change the scan may find, made before it: a call in the scan's loop (a
+    // push_back's growth) would make the compiler keep the boxes' broadcast rows on the stack.
+    size_t bins = 1;
+    for (size_t a = 0; a < kAxes; ++a) bins *= bhi[a] - blo[a] + 1;
+    const size_t room = large_change_count_ + bins * max_bin_blocks_ * kBlockSlots;
+    if (large_changes_.size() < room) {
+      large_changes_.resize(std::max(room, 2 * large_changes_.size()));
+    }
+    LargeChange* out = large_changes_.data() + large_change_count_;
     uint32_t blocks = 0;
-    std::array<uint32_t, kAxes> at = blo;  // the bins of [blo, bhi], row-major (as ForEachBin)
     while (true) {
       uint32_t bin = 0, beyond = 0;  // beyond: the axes on which this bin is past blo
       for (size_t a = kAxes; a-- > 0;) {
@@ -219,7 +230,7 @@ class GridLargeSet : public GridWitness<Cell> {
           const uint32_t l = block.large[i];
           const Large& lg = large_[l];
           if (lg.changed || lg.handle == kNone || !tracker_.Accepts(h, lg.handle)) continue;
-          large_changes_.push_back(LargeChange{l, h, ((now >> i) & 1u) != 0});
+          *out++ = LargeChange{l, h, ((now >> i) & 1u) != 0};
         }
       }
       size_t a = 0;
@@ -230,6 +241,7 @@ class GridLargeSet : public GridWitness<Cell> {
       if (a == kAxes) break;
       ++at[a];
     }
+    large_change_count_ = static_cast<size_t>(out - large_changes_.data());
     // Counted as the dense cell counts: each block tested, a test per slot and box.
     tests_ += blocks * static_cast<uint32_t>(kBlockSlots) * (live[0] + live[1]);
   }
@@ -239,13 +251,14 @@ class GridLargeSet : public GridWitness<Cell> {
   // witnesses them. A change for a large object that changed later in the query (or was
   // erased) is dropped: its rescan, or its erase, settles its pairs from the sets as they were.
   void ApplyLargeChanges() {
-    if (large_changes_.empty()) return;
+    if (large_change_count_ == 0) return;
+    const std::span<const LargeChange> changes(large_changes_.data(), large_change_count_);
     std::vector<uint32_t>& begin = scratch_;
     begin.assign(large_.size() + 1, 0);
-    for (const LargeChange& c : large_changes_) ++begin[c.large + 1];
+    for (const LargeChange& c : changes) ++begin[c.large + 1];
     for (size_t l = 0; l < large_.size(); ++l) begin[l + 1] += begin[l];
-    sorted_changes_.resize(large_changes_.size());
-    for (const LargeChange& c : large_changes_) sorted_changes_[begin[c.large]++] = c;
+    sorted_changes_.resize(changes.size());
+    for (const LargeChange& c : changes) sorted_changes_[begin[c.large]++] = c;
     const size_t n = sorted_changes_.size();
     for (size_t k = 0; k < n; ++k) {
       if (k + 8 < n) {  // the partner sets are large: their slots are all over the memory
@@ -260,7 +273,7 @@ class GridLargeSet : public GridWitness<Cell> {
       (void)done;
       Witness(c.h, lg.handle, c.now);
     }
-    large_changes_.clear();
+    large_change_count_ = 0;
   }
   // Sets a changed large object's partners to exactly the live objects overlapping it: the small
   // ones in the cells its range covers and the other large ones.
@@ -429,9 +442,11 @@ class GridLargeSet : public GridWitness<Cell> {
       ForEachBin(blo, bhi, [&](uint32_t bin, const auto&) { ++count[bin]; });
     }
     bin_begin_.assign(total + 1, 0);
+    max_bin_blocks_ = 0;
     for (size_t b = 0; b < total; ++b) {
-      bin_begin_[b + 1] =
-          bin_begin_[b] + static_cast<uint32_t>((count[b] + kBlockSlots - 1) / kBlockSlots);
+      const auto bin_blocks = static_cast<uint32_t>((count[b] + kBlockSlots - 1) / kBlockSlots);
+      bin_begin_[b + 1] = bin_begin_[b] + bin_blocks;
+      max_bin_blocks_ = std::max(max_bin_blocks_, bin_blocks);
       count[b] = 0;  // from here: the bin's slots filled
     }
     blocks_.assign(bin_begin_[total], LargeBlock{});
@@ -462,7 +477,7 @@ class GridLargeSet : public GridWitness<Cell> {
     large_.clear();
     free_large_.clear();
     changed_large_.clear();
-    large_changes_.clear();
+    large_change_count_ = 0;
     large_count_ = 0;
     bin_begin_.clear();
     blocks_.clear();
@@ -496,6 +511,7 @@ class GridLargeSet : public GridWitness<Cell> {
   };
   std::vector<uint32_t> bin_begin_;
   std::vector<LargeBlock> blocks_;
+  uint32_t max_bin_blocks_ = 0;                             // the most blocks of one bin
   BlockKernel block_kernel_ = ResolveBlockKernel<Coord>();  // tests may force a narrower one
   std::array<uint32_t, kAxes> bins_{};
   std::array<int64_t, kAxes> bin_origin_{};
@@ -509,12 +525,14 @@ class GridLargeSet : public GridWitness<Cell> {
   uint32_t epoch_ = 0;
   std::vector<uint32_t> found_, scratch_;
   // A small object's change of status with an unchanged large object, found by the candidate
-  // tests, applied after the routing (ApplyLargeChanges).
+  // tests, applied after the routing (ApplyLargeChanges): the first large_change_count_ of
+  // large_changes_ (whose size is only room).
   struct LargeChange {
     uint32_t large, h;
     bool now;
   };
   std::vector<LargeChange> large_changes_, sorted_changes_;
+  size_t large_change_count_ = 0;
 };
 
 }  // namespace bp::detail

@@ -165,7 +165,7 @@ Status GridCore<Cell>::ValidateLargeSet(const std::vector<uint32_t>& live,
                                         FlatMap<uint64_t, uint32_t>* count_out) const {
   FlatMap<uint64_t, uint32_t>& count = *count_out;
   if (bins_stale_) return Invalid("large bins out of date after a query");
-  if (!large_changes_.empty()) return Invalid("large-object changes left after a query");
+  if (large_change_count_ != 0) return Invalid("large-object changes left after a query");
   if (large_count_ != 0 && bin_begin_.size() < 2) return Invalid("large objects without bins");
   if (!bin_begin_.empty()) {
     // Each live large object once in every bin its range touches, with its box and owned bits,
