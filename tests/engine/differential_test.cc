@@ -20,12 +20,13 @@ namespace {
 // How a scenario draws its operations.
 struct Scenario {
   const char* name;
-  int lattice;            // coordinates are integers in [-lattice, lattice]
-  int max_extent;         // box extents are in [0, max_extent]
-  int initial;            // objects inserted before the first query
-  int frames;             // queries after the first
-  int ops_per_frame;      // upper bound of random operations per frame
-  bool filtered = false;  // objects get random categories, masks and static flags
+  int lattice;                // coordinates are integers in [-lattice, lattice]
+  int max_extent;             // box extents are in [0, max_extent]
+  int initial;                // objects inserted before the first query
+  int frames;                 // queries after the first
+  int ops_per_frame;          // upper bound of random operations per frame
+  bool filtered = false;      // objects get random categories, masks and static flags
+  bool statics_only = false;  // filtered by static flags alone (the options' compact form)
 };
 
 constexpr Scenario kScenarios[] = {
@@ -41,6 +42,9 @@ constexpr Scenario kScenarios[] = {
     // Random object options: three category bits, masks that drop some of them, a third of the
     // objects static; reinserts in one frame may change them (a new handle for an old key).
     {"filtered", 40, 10, 120, 40, 50, true},
+    // Half the objects static, every category and mask the default: the options' compact form
+    // (static flags only) all the way through; reinserts may flip the flag.
+    {"static_flags", 40, 10, 120, 40, 50, true, true},
 };
 
 // The driver depends on the shape alone, so that it is compiled once per shape rather than once
@@ -105,6 +109,10 @@ class DifferentialCore : public ::testing::Test {
   ObjectOptions RandomOptions() {
     ObjectOptions o;
     if (!sc_->filtered || Below(4) == 0) return o;
+    if (sc_->statics_only) {
+      o.is_static = Below(2) == 0;
+      return o;
+    }
     o.category = uint64_t{1} << Below(3);
     o.mask = Below(2) == 0 ? ~uint64_t{0} : ~(uint64_t{1} << Below(3));
     o.is_static = Below(3) == 0;

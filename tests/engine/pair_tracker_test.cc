@@ -1,6 +1,8 @@
 // PairTracker split into shards (SetShards) against one unsharded, under a seeded random
-// sequence of adds, removes and drains; and adds of pairs of different shards from two threads
-// at once, as the grid's parallel fold makes them.
+// sequence of adds, removes and drains; adds of pairs of different shards from two threads at
+// once, as the grid's parallel fold makes them; and the options table, whose compact form (only
+// static flags set) and whole form (categories and masks) answer as bp::Accepts does, across the
+// switch from one to the other.
 #include "bp/detail/pair_tracker.h"
 
 #include <algorithm>
@@ -11,6 +13,8 @@
 #include <vector>
 
 #include <gtest/gtest.h>
+
+#include "bp/object_options.h"
 
 namespace bp::detail {
 namespace {
@@ -106,6 +110,46 @@ TEST(PairTracker, ThreadsAddAndRemoveInTheirOwnShardsAtOnce) {
   EXPECT_EQ(Overlaps(tracker), Overlaps(model));
   EXPECT_EQ(Drained(tracker), Drained(model));
   EXPECT_EQ(tracker.pending_changes(), 0u);
+}
+
+TEST(OptionsTable, CompactStaticFlagsThenWholeOptionsAnswerAsAccepts) {
+  std::mt19937_64 rng(17);
+  OptionsTable table;
+  std::vector<ObjectOptions> set(64);  // what each handle was given (defaults if never set)
+  const auto check = [&](const char* stage) {
+    SCOPED_TRACE(stage);
+    for (uint32_t a = 0; a < set.size(); ++a) {
+      ASSERT_EQ(table.Get(a), set[a]) << "handle " << a;
+      ASSERT_EQ(table.IsStatic(a), set[a].is_static) << "handle " << a;
+      for (uint32_t b = 0; b < set.size(); ++b) {
+        ASSERT_EQ(table.Accepts(a, b), Accepts(set[a], set[b])) << a << ", " << b;
+        if (!table.MayRefuse(a)) {
+          ASSERT_TRUE(Accepts(set[a], set[b])) << a << ", " << b;
+        }
+      }
+    }
+  };
+  check("nothing set");
+  EXPECT_FALSE(table.filtering());
+  // Static flags only: the compact form; some handles set back to the defaults.
+  for (uint32_t h = 0; h < 40; ++h) {
+    set[h].is_static = rng() % 3 == 0;
+    table.Set(h, set[h]);
+  }
+  EXPECT_TRUE(table.filtering());
+  EXPECT_FALSE(table.masking());
+  check("static flags only");
+  // A category arrives: the whole options from here on, the static flags kept.
+  set[50].category = 6;
+  set[50].mask = 2;
+  table.Set(50, set[50]);
+  EXPECT_TRUE(table.masking());
+  check("after the first category");
+  for (uint32_t h = 0; h < set.size(); ++h) {
+    set[h] = ObjectOptions{uint64_t{1} << (rng() % 3), rng() % 8, rng() % 2 == 0};
+    table.Set(h, set[h]);
+  }
+  check("random options");
 }
 
 }  // namespace

@@ -168,7 +168,7 @@ class DenseCellCore {
 
   /// Sets the options of slot h (before its insert).
   void SetOptions(uint32_t h, const ObjectOptions& options) { options_of_.Set(h, options); }
-  const ObjectOptions& options(uint32_t h) const { return options_of_.Get(h); }
+  ObjectOptions options(uint32_t h) const { return options_of_.Get(h); }
   /// Calls f(a, b, overlapping_now) for every pair whose status the last Apply changed.
   template <class F>
   void DrainChanges(F&& f) {
@@ -425,12 +425,13 @@ class DenseCellCore {
       /* c is done from its own scan on: its bit keeps it from pairing with itself. */      \
       done[c / kBlock] |= 1u << (c % kBlock);                                               \
       const uint32_t n = SCAN(c, done, hits);                                               \
+      const bool filter = options_of_.MayRefuse(c); /* else Accepts holds */                \
       for (uint32_t k = 0; k < n; ++k) {                                                    \
         const Hit& hit = hits[k];                                                           \
         for (uint32_t diff = hit.diff; diff != 0; diff &= diff - 1) {                       \
           const auto i = static_cast<uint32_t>(std::countr_zero(diff));                     \
           const uint32_t j = hit.block * kBlock + i;                                        \
-          if (!Accepts(c, j)) continue;                                                     \
+          if (filter && !Accepts(c, j)) continue;                                           \
           changes_.push_back(Change{c, j, ((hit.now >> i) & 1u) != 0});                     \
           FlipPair(c, j);                                                                   \
         }                                                                                   \

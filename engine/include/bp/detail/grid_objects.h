@@ -93,8 +93,8 @@ class GridObjects {
   // True iff handle h's options accept no object at all (mask or category 0: see
   // bp/object_options.h): its pairs are never formed, so it is kept out of the cells.
   bool PairsWithNothing(uint32_t h) const {
-    if (!tracker_.filtering()) return false;
-    const ObjectOptions& o = tracker_.options(h);
+    if (!tracker_.masking()) return false;  // default categories and masks pair
+    const ObjectOptions o = tracker_.options(h);
     return o.mask == 0 || o.category == 0;
   }
 

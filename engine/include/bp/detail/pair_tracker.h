@@ -37,7 +37,10 @@ inline uint32_t PairFirst(uint64_t p) { return static_cast<uint32_t>(p >> 32); }
 inline uint32_t PairSecond(uint64_t p) { return static_cast<uint32_t>(p); }
 
 /// Each handle's ObjectOptions, stored only once some handle has non-default ones (until then a
-/// look-up costs a branch). Shared by PairTracker and the grid's dense cell.
+/// look-up costs a branch). While every category and mask keeps its default (static flags are
+/// the only options set: the usual case), a handle's options are its static flag, one byte of a
+/// compact table, and Accepts reads two of those; the whole options are stored from the first
+/// handle with another category or mask on. Shared by PairTracker and the grid's dense cell.
 class OptionsTable {
  public:
   /// Sets the options of handle h (before any of its pairs is formed).
@@ -46,22 +49,52 @@ class OptionsTable {
       if (options == ObjectOptions{}) return;
       filtering_ = true;
     }
-    if (h >= options_.size()) options_.resize(size_t{h} + 1);
-    options_[h] = options;
+    if (!masking_ &&
+        (options.category != ObjectOptions{}.category || options.mask != ObjectOptions{}.mask)) {
+      StartMasking();
+    }
+    if (h >= static_.size()) static_.resize(size_t{h} + 1, 0);
+    static_[h] = options.is_static ? 1 : 0;
+    if (masking_) {
+      if (h >= options_.size()) options_.resize(size_t{h} + 1);
+      options_[h] = options;
+    }
   }
   /// The options of handle h.
-  const ObjectOptions& Get(uint32_t h) const {
-    static const ObjectOptions kDefault;
-    return h < options_.size() ? options_[h] : kDefault;
+  ObjectOptions Get(uint32_t h) const {
+    if (masking_) return h < options_.size() ? options_[h] : ObjectOptions{};
+    ObjectOptions o;
+    o.is_static = IsStatic(h);
+    return o;
   }
   /// True iff some handle has had non-default options (then Set must see every insert).
   bool filtering() const { return filtering_; }
+  /// True iff some handle has had another category or mask than the defaults.
+  bool masking() const { return masking_; }
+  bool IsStatic(uint32_t h) const { return h < static_.size() && static_[h] != 0; }
+  /// False when no pair of h can be refused (Accepts(h, x) holds for every x): callers that
+  /// test many pairs of h skip the look-ups.
+  bool MayRefuse(uint32_t h) const { return filtering_ && (masking_ || IsStatic(h)); }
   /// True iff the pair (a, b) may be tracked (see bp/object_options.h).
-  bool Accepts(uint32_t a, uint32_t b) const { return !filtering_ || bp::Accepts(Get(a), Get(b)); }
+  bool Accepts(uint32_t a, uint32_t b) const {
+    if (!filtering_) return true;
+    if (!masking_) return !(IsStatic(a) && IsStatic(b));
+    return bp::Accepts(Get(a), Get(b));
+  }
 
  private:
-  std::vector<ObjectOptions> options_;  // by handle; empty while filtering_ is false
+  // From here on the whole options are stored: those set so far differ from the defaults only
+  // by their static flags.
+  void StartMasking() {
+    masking_ = true;
+    options_.assign(static_.size(), ObjectOptions{});
+    for (size_t h = 0; h < static_.size(); ++h) options_[h].is_static = static_[h] != 0;
+  }
+
+  std::vector<uint8_t> static_;         // by handle; empty while filtering_ is false
+  std::vector<ObjectOptions> options_;  // by handle; empty while masking_ is false
   bool filtering_ = false;
+  bool masking_ = false;
 };
 
 class PairTracker {
@@ -115,9 +148,11 @@ class PairTracker {
   /// nothing until some handle has non-default ones.
   void SetOptions(uint32_t h, const ObjectOptions& options) { options_.Set(h, options); }
   /// The options of handle h.
-  const ObjectOptions& options(uint32_t h) const { return options_.Get(h); }
+  ObjectOptions options(uint32_t h) const { return options_.Get(h); }
   /// True iff some handle has had non-default options (then SetOptions must see every insert).
   bool filtering() const { return options_.filtering(); }
+  /// True iff some handle has had another category or mask than the defaults.
+  bool masking() const { return options_.masking(); }
   /// True iff the pair (a, b) may be tracked (see bp/object_options.h).
   bool Accepts(uint32_t a, uint32_t b) const { return options_.Accepts(a, b); }
 
