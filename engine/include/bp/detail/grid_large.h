@@ -202,9 +202,12 @@ class GridLargeSet : public GridWitness<Cell> {
     const uint32_t live[2] = {boxes.in[0], boxes.in[1]};
     // Room for every change the scan may find, made before it: a call in the scan's loop (a
     // push_back's growth) would make the compiler keep the boxes' broadcast rows on the stack.
+    // At most one change per large object (the owned masks take each in one bin only), and at
+    // most one per slot of the blocks visited.
     size_t bins = 1;
     for (size_t a = 0; a < kAxes; ++a) bins *= bhi[a] - blo[a] + 1;
-    const size_t room = large_change_count_ + bins * max_bin_blocks_ * kBlockSlots;
+    const size_t room =
+        large_change_count_ + std::min(bins * max_bin_blocks_ * kBlockSlots, large_.size());
     if (large_changes_.size() < room) {
       large_changes_.resize(std::max(room, 2 * large_changes_.size()));
     }
