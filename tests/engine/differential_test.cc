@@ -42,8 +42,9 @@ constexpr Scenario kScenarios[] = {
     // Random object options: three category bits, masks that drop some of them, a third of the
     // objects static; reinserts in one frame may change them (a new handle for an old key).
     {"filtered", 40, 10, 120, 40, 50, true},
-    // Half the objects static, every category and mask the default: the options' compact form
-    // (static flags only) all the way through; reinserts may flip the flag.
+    // About a third of the objects static (half of those given options), every category and
+    // mask the default: the options' compact form (static flags only) all the way through;
+    // reinserts may flip the flag.
     {"static_flags", 40, 10, 120, 40, 50, true, true},
 };
 
