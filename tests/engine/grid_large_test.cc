@@ -1,7 +1,7 @@
 // The grid's large-object set (detail/grid_large.h): world-sized boxes, transitions between
 // small and large, an object turning large in the middle of a query, small objects leaving the
 // range the bins were laid over and large ones moving with them, bins crowded with large
-// objects. Against brute force.
+// objects, the room kept for a scan's changes. Against brute force.
 #include <cstdint>
 #include <random>
 #include <string>
@@ -164,6 +164,37 @@ TEST(Grid, CrowdedLargeObjectBinsCountEachPairOnce) {
   sap.max_cells_per_object = 8;
   GridSegmentedSap<2, double> sap_engine(sap);
   CrowdedBins<2, double>(&sap_engine);
+}
+
+// A small object that crosses the whole world in each query, with thin large objects listed in
+// every bin: the room the large set makes for a scan's changes stays bounded by the large
+// objects' count, not by the bins the object's range spans times their blocks.
+TEST(Grid, ObjectCrossingCrowdedBinsKeepsTheLargeChangeRoomSmall) {
+  GridDenseOptions options;
+  options.cell_size = 1;
+  options.max_cells_per_object = 8;
+  GridDense<3, float> engine(options);
+  Twin<3, float, GridDense<3, float>> twin(&engine);
+  std::mt19937_64 rng(12);
+  std::uniform_real_distribution<float> pos(0, 63);
+  constexpr uint64_t kStrips = 600;
+  for (uint64_t i = 0; i < kStrips; ++i) {  // along the first axis, thin on the others
+    const float y = pos(rng), z = pos(rng);
+    twin.Insert(100 + i, Box<3, float>{{0, y, z}, {64, y + 0.5f, z + 0.5f}});
+  }
+  // Small objects over the whole world, which the bins are laid over (the cells in use).
+  for (uint64_t i = 0; i < 20; ++i) twin.Insert(10 + i, CubeAt<3, float>(pos(rng), 1));
+  twin.Insert(30, CubeAt<3, float>(0, 1));
+  twin.Insert(31, CubeAt<3, float>(63, 1));
+  twin.Insert(1, CubeAt<3, float>(0.5f, 1));
+  twin.Query();
+  for (int f = 0; f < 6 && !::testing::Test::HasFailure(); ++f) {
+    twin.Update(1, CubeAt<3, float>(f % 2 == 0 ? 62.0f : 0.5f, 1));
+    twin.Query();
+  }
+  EXPECT_EQ(engine.GetStats().grid.value().large_objects, kStrips);
+  EXPECT_LE(detail::GridTestPeer::LargeChangeRoom(engine.core()), 2 * kStrips);
+  EXPECT_TRUE(engine.Validate().ok()) << engine.Validate().message();
 }
 
 }  // namespace

@@ -119,6 +119,11 @@ struct GridTestPeer {
     const int last = 31 - std::countl_zero(uint32_t{block.owned[0]});
     for (auto& m : block.owned) m = static_cast<uint16_t>(m & ~(1u << last));
   }
+  // The room the large set holds for its candidate tests' changes (detail/grid_large.h).
+  template <class Core>
+  static size_t LargeChangeRoom(const Core& core) {
+    return core.large_changes_.size();
+  }
   template <class Core>
   static void AddWitness(Core& core) {
     bool added = false;

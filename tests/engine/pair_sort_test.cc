@@ -1,7 +1,7 @@
 // SortKeyPairs (detail/pair_sort.h) orders key pairs exactly as std::sort does, for every
 // integral key type (signed ones across zero, narrow ones, keys that share their high bits or
-// differ only there), on both sides of the length at which it switches to the radix sort, and
-// for a key type that is not integral.
+// differ only there), on both sides of the length at which it switches to the radix sort, after
+// an odd number of radix passes as after an even one, and for a key type that is not integral.
 #include "bp/detail/pair_sort.h"
 
 #include <algorithm>
@@ -16,14 +16,19 @@
 namespace bp::detail {
 namespace {
 
-template <class Key, class Draw>
-void ExpectSortedLikeStdSort(size_t n, Draw draw) {
+template <class Key, class DrawFirst, class DrawSecond>
+void ExpectSortedLikeStdSort(size_t n, DrawFirst first, DrawSecond second) {
   std::vector<std::pair<Key, Key>> pairs(n), scratch;
-  for (auto& p : pairs) p = {draw(), draw()};
+  for (auto& p : pairs) p = {first(), second()};
   std::vector<std::pair<Key, Key>> expected = pairs;
   std::sort(expected.begin(), expected.end());
   SortKeyPairs(&pairs, &scratch);
   EXPECT_EQ(pairs, expected) << "n " << n;
+}
+
+template <class Key, class Draw>
+void ExpectSortedLikeStdSort(size_t n, Draw draw) {
+  ExpectSortedLikeStdSort<Key>(n, draw, draw);
 }
 
 const size_t kLengths[] = {0, 1, 17, kRadixFrom - 1, kRadixFrom, kRadixFrom + 1, 7000};
@@ -47,6 +52,18 @@ TEST(PairSort, SignedAndNarrowKeys) {
     ExpectSortedLikeStdSort<int32_t>(n, [&] { return static_cast<int32_t>(rng()); });
     ExpectSortedLikeStdSort<int8_t>(n, [&] { return static_cast<int8_t>(rng()); });
     ExpectSortedLikeStdSort<uint16_t>(n, [&] { return static_cast<uint16_t>(rng()); });
+  }
+}
+
+TEST(PairSort, AnOddNumberOfPassesEndsInTheList) {
+  // Each radix pass moves the pairs between the list and the scratch: an odd number of passes
+  // leaves them in the scratch, to be copied back. One digit varies (the first key's), or three.
+  std::mt19937_64 rng(8);
+  for (size_t n : {kRadixFrom, size_t{5000}}) {
+    ExpectSortedLikeStdSort<uint64_t>(
+        n, [&] { return rng() % 100; }, [] { return uint64_t{7}; });
+    ExpectSortedLikeStdSort<uint64_t>(
+        n, [&] { return rng() % 100; }, [&] { return rng() % (uint64_t{1} << 22); });
   }
 }
 

@@ -139,6 +139,14 @@ TEST(OptionsTable, CompactStaticFlagsThenWholeOptionsAnswerAsAccepts) {
   EXPECT_TRUE(table.filtering());
   EXPECT_FALSE(table.masking());
   check("static flags only");
+  // Handles set again within the compact form (reinserted with other flags), some to the
+  // defaults.
+  for (uint32_t h = 0; h < 40; h += 3) {
+    set[h].is_static = !set[h].is_static;
+    table.Set(h, set[h]);
+  }
+  EXPECT_FALSE(table.masking());
+  check("static flags set again");
   // A category arrives: the whole options from here on, the static flags kept.
   set[50].category = 6;
   set[50].mask = 2;
