@@ -157,6 +157,13 @@ class Broadphase {
   virtual void Query(EventSink<Key>& sink) = 0;
   /// Calls f(a, b) with a < b for every overlapping pair as of the last query (any order).
   virtual void ForEachOverlap(const std::function<void(const Key&, const Key&)>& f) const = 0;
+  /// Calls f(key) for every object live as of the last query whose box overlaps box (closed
+  /// intervals on every axis, as pairs are tested; objects of any options, those that pair with
+  /// nothing included), in any order: the spot query "what is in this box now". An engine with a
+  /// margin tests its fattened boxes. O(objects) in general; the grid engines visit only the
+  /// cells the box covers and their large objects.
+  virtual void ForEachOverlapping(const BoxType& box,
+                                  const std::function<void(const Key&)>& f) const = 0;
   /// Calls f(key) for every present key: live at the last query and not erased since, or
   /// inserted since (any order). O(objects); meant for rare whole-set work, such as erasing
   /// every object of a client that went away.

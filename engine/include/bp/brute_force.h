@@ -70,6 +70,8 @@ class BruteForceCore {
   const PairTracker& tracker() const { return tracker_; }
   void FillStats(Stats* out) const { out->overlap_tests = tests_; }
   size_t live() const { return live_.size(); }
+  /// The box of live handle h as of the last Apply (the spot query's, see Broadphase).
+  const Box<K, T>& box(uint32_t h) const { return boxes_[h]; }
 
   Status Validate() const {
     for (size_t i = 0; i < live_.size(); ++i) {

@@ -134,6 +134,8 @@ class SegmentedSapCore {
   PairTracker& tracker() { return tracker_; }
   const PairTracker& tracker() const { return tracker_; }
   size_t live() const { return live_; }
+  /// The box of live handle h as of the last Apply (the spot query's, see Broadphase).
+  const Box<K, T>& box(uint32_t h) const { return boxes_[h]; }
 
   void FillStats(Stats* out) const {
     out->swaps = swaps_;

@@ -172,6 +172,18 @@ class FrontEnd final : public Broadphase<Core::kDim, typename Core::Coord, Key>,
     });
   }
 
+  void ForEachOverlapping(const BoxType& box,
+                          const std::function<void(const Key&)>& f) const override {
+    if constexpr (requires { core_.ForEachOverlapping(box, [](uint32_t) {}); }) {
+      core_.ForEachOverlapping(box, [&](uint32_t h) { f(slots_[h].key); });
+    } else {
+      // Every handle live in the core as of the last query, its box from the core.
+      for (uint32_t h = 0; h < slots_.size(); ++h) {
+        if (LiveOf(slots_[h]) && Overlaps(core_.box(h), box)) f(slots_[h].key);
+      }
+    }
+  }
+
   void ForEachObject(const std::function<void(const Key&)>& f) const override {
     for (const Slot& slot : slots_) {
       if (Present(slot)) f(slot.key);

@@ -112,7 +112,7 @@ class GridCellTable : public GridObjects<Cell> {
   // Calls f(cell index) for every existing cell in a range of any size: by coordinates when the
   // range has fewer cells than the grid, else by walking the cells in use.
   template <class F>
-  void ForEachExistingCell(const CellCoord& lo, const CellCoord& hi, F&& f) {
+  void ForEachExistingCell(const CellCoord& lo, const CellCoord& hi, F&& f) const {
     uint64_t n = 1;
     bool small = true;
     for (size_t a = 0; a < kAxes && small; ++a) {

@@ -106,6 +106,38 @@ class GridCore : private GridSizing<Cell> {
     return beside_ran_;
   }
 
+  /// Calls f(h) once for every live object whose box overlaps box (Broadphase's spot query):
+  /// the objects of the cells the box covers, each in the first cell its range shares with the
+  /// box's, the large objects, and those that pair with nothing (a scan of the records, when
+  /// there are any). Touches nothing.
+  template <class F>
+  void ForEachOverlapping(const BoxType& box, F&& f) const {
+    if (!cells_.empty()) {
+      CellCoord lo, hi;
+      RangeOf(box, &lo, &hi);
+      ForEachExistingCell(lo, hi, [&](uint32_t idx) {
+        const GridCell& cell = *cells_[idx];
+        for (uint32_t g : cell.global) {
+          if (g == kNone) continue;
+          const Object& o = objects_[g];
+          if (!Overlaps(o.box, box)) continue;
+          bool first = true;
+          for (size_t a = 0; a < kAxes; ++a)
+            first = first && cell.coord[a] == std::max(lo[a], o.lo[a]);
+          if (first) f(g);
+        }
+      });
+    }
+    for (const Large& l : large_) {
+      if (l.handle != kNone && Overlaps(objects_[l.handle].box, box)) f(l.handle);
+    }
+    if (unpaired_ == 0) return;
+    for (uint32_t h = 0; h < objects_.size(); ++h) {
+      const Object& o = objects_[h];
+      if (o.state == State::kLive && o.large == kUnpaired && Overlaps(o.box, box)) f(h);
+    }
+  }
+
   PairTracker& tracker() { return tracker_; }
   const PairTracker& tracker() const { return tracker_; }
   size_t live() const { return live_; }
@@ -185,6 +217,7 @@ class GridCore : private GridSizing<Cell> {
   using Base::fold_ms_;
   using Base::FoldWitnessed;
   using Base::ForEachBin;
+  using Base::ForEachExistingCell;
   using Base::FreeCell;
   using Base::global_;
   using Base::grouped_;
