@@ -1,10 +1,12 @@
 #include "engine_host.h"
 
 #include <algorithm>
+#include <array>
 #include <charconv>
 #include <cmath>
 #include <limits>
 #include <type_traits>
+#include <unordered_map>
 
 #include "bp/engines.h"
 
@@ -98,6 +100,7 @@ class TypedHost final : public EngineHost {
     item_index_.clear();
     auto flush_erases = [&]() {
       if (keys_.empty()) return;
+      for (uint64_t key : keys_) NoteErase(key);
       const size_t refused = engine_->EraseMany(keys_, [&](size_t k, const Status&) {
         const uint32_t index = item_index_[k];
         refuse(wire::OP_ERASE, index, batch.erases(static_cast<int>(index)), wire::UNKNOWN_ID,
@@ -133,6 +136,7 @@ class TypedHost final : public EngineHost {
         keys.push_back(key);
       }
     });
+    for (uint64_t key : keys) NoteErase(key);
     const uint64_t erased = keys.size() - engine_->EraseMany(keys);
     objects_ -= erased;
     return erased;
@@ -166,6 +170,50 @@ class TypedHost final : public EngineHost {
     engine_->ForEachOverlap(
         [&](const uint64_t& a, const uint64_t& b) { pairs->emplace_back(a, b); });
     std::sort(pairs->begin(), pairs->end());
+  }
+
+  Status PlaceRegion(uint64_t key, std::span<const double> lo, std::span<const double> hi,
+                     bool round_outward, bool insert) override {
+    BoxT box;
+    if (Status s = ConvertDoubles(lo, hi, round_outward, &box); !s.ok()) return s;
+    if (!insert) return engine_->Update(key, box);
+    ObjectOptions options;
+    options.category = kRegionCategory;
+    options.mask = ~kRegionCategory;
+    return engine_->Insert(key, box, options);
+  }
+
+  Status CheckBox(std::span<const double> lo, std::span<const double> hi,
+                  bool round_outward) const override {
+    BoxT box;
+    return ConvertDoubles(lo, hi, round_outward, &box);
+  }
+
+  void EraseRegion(uint64_t key) override { (void)engine_->Erase(key); }
+
+  uint64_t Category(uint64_t key) const override {
+    const auto it = categories_.find(key);
+    return it == categories_.end() ? 1 : it->second;
+  }
+
+  void TakeRecategorized(std::vector<uint64_t>* out) override {
+    std::sort(recategorized_.begin(), recategorized_.end());
+    recategorized_.erase(std::unique(recategorized_.begin(), recategorized_.end()),
+                         recategorized_.end());
+    out->swap(recategorized_);
+    recategorized_.clear();
+  }
+
+  Status SpotQuery(std::span<const double> lo, std::span<const double> hi,
+                   std::vector<uint64_t>* keys) const override {
+    keys->clear();
+    BoxT box;
+    if (Status s = ConvertDoubles(lo, hi, false, &box); !s.ok()) return s;
+    engine_->ForEachOverlapping(box, [&](const uint64_t& key) {
+      if (key >= kLocalIdLimit) keys->push_back(key);
+    });
+    std::sort(keys->begin(), keys->end());
+    return Status::Ok();
   }
 
   uint64_t Objects() const override { return objects_; }
@@ -304,10 +352,12 @@ class TypedHost final : public EngineHost {
       if (batch.restate() && engine_->Erase(key).ok()) {
         // Restated: the object the daemon holds is replaced (the engine turns erase + insert
         // into an update, or into a rekey when the attributes changed).
+        NoteErase(key);
         if (Status s = engine_->Insert(key, box, options); !s.ok()) {
           --objects_;
           refuse(op, index, id, wire::ENGINE_REFUSED, s.ToString() + " (the object is erased)");
         } else {
+          NoteInsert(key, options.category);
           ++out->updates;
         }
         continue;
@@ -328,18 +378,54 @@ class TypedHost final : public EngineHost {
         refuse(op, index, id, wire::ENGINE_REFUSED, s.ToString());
         continue;
       }
+      NoteInsert(key, options.category);
       ++objects_;
       ++out->inserts;
     }
     flush();
   }
 
+  // Keeps the non-default categories of live objects, and the keys whose category may change.
+  void NoteInsert(uint64_t key, uint64_t category) {
+    if (category == 1) return;
+    categories_[key] = category;
+    recategorized_.push_back(key);
+  }
+  void NoteErase(uint64_t key) {
+    if (categories_.empty()) return;
+    if (categories_.erase(key) != 0) recategorized_.push_back(key);
+  }
+
+  // Converts a region or spot box; round_outward rounds what an integer engine cannot hold.
+  Status ConvertDoubles(std::span<const double> lo, std::span<const double> hi, bool round_outward,
+                        BoxT* box) const {
+    if (lo.size() != static_cast<size_t>(K) || hi.size() != static_cast<size_t>(K)) {
+      return Status(StatusCode::kInvalidArgument,
+                    "a box needs " + std::to_string(K) + " lo and hi values; got " +
+                        std::to_string(lo.size()) + " and " + std::to_string(hi.size()));
+    }
+    std::array<double, K> l, h;
+    for (size_t a = 0; a < static_cast<size_t>(K); ++a) {
+      l[a] = lo[a];
+      h[a] = hi[a];
+      if (round_outward && std::is_integral_v<T> && std::isfinite(l[a]) && std::isfinite(h[a])) {
+        l[a] = std::max(std::floor(l[a]), static_cast<double>(std::numeric_limits<T>::min()));
+        h[a] = std::min(std::ceil(h[a]), static_cast<double>(std::numeric_limits<T>::max()));
+      }
+    }
+    wire::RejectReason reason{};
+    std::string why;
+    if (!ConvertBox(l.data(), h.data(), box, &reason, &why)) return Status(StatusCode::kInvalidArgument, why);
+    return Status::Ok();
+  }
   std::unique_ptr<Engine> engine_;
   std::vector<typename Engine::Item> items_;  // a run of a batch's updates, for UpdateMany
   std::vector<uint64_t> keys_;                // a run of a batch's erases, for EraseMany
   std::vector<uint32_t> item_index_;          // their indexes in the batch
   uint64_t max_objects_;
   uint64_t objects_ = 0;
+  std::unordered_map<uint64_t, uint64_t> categories_;  // live objects' non-default categories
+  std::vector<uint64_t> recategorized_;                // see TakeRecategorized
   uint64_t overlaps_ = 0;
 };
 

@@ -43,6 +43,11 @@ inline constexpr uint64_t GlobalKey(uint32_t producer, uint64_t local) {
   return (uint64_t{producer} << kProducerShift) | local;
 }
 
+/// Category bit 63 is the regions' (daemon-owned objects with producer 0, the regions of
+/// interests): a region pairs with every object whose mask has this bit (the default mask does)
+/// and whose category has another bit, and never with another region.
+inline constexpr uint64_t kRegionCategory = uint64_t{1} << 63;
+
 /// One refused item of a batch.
 struct Reject {
   wire::Op op = wire::OP_UNSPECIFIED;
@@ -80,6 +85,27 @@ class EngineHost {
   virtual uint64_t Overlaps() const = 0;
   /// Replaces pairs by every overlapping pair (a < b) as of the last query, sorted.
   virtual void Snapshot(std::vector<std::pair<uint64_t, uint64_t>>* pairs) const = 0;
+  /// Inserts (insert) or moves the region key (< 2^48) to the box [lo, hi] (K values each). The
+  /// box is converted like an update's doubles; with round_outward, coordinates an integer
+  /// engine cannot hold are rounded outward instead of refused. InvalidArgument names the axis
+  /// and the reason. Regions are not counted in Objects().
+  virtual Status PlaceRegion(uint64_t key, std::span<const double> lo, std::span<const double> hi,
+                             bool round_outward, bool insert) = 0;
+  /// The check PlaceRegion and SpotQuery make of a box, alone.
+  virtual Status CheckBox(std::span<const double> lo, std::span<const double> hi,
+                          bool round_outward) const = 0;
+  /// Erases a region placed before.
+  virtual void EraseRegion(uint64_t key) = 0;
+  /// The category of a live object (1, the default, for one the host does not know).
+  virtual uint64_t Category(uint64_t key) const = 0;
+  /// Moves into *out (sorted, unique) the keys whose category may have changed since the last
+  /// call: objects with a non-default category inserted or erased (an erase and reinsert in one
+  /// frame changes the category without an event).
+  virtual void TakeRecategorized(std::vector<uint64_t>* out) = 0;
+  /// Replaces keys by the objects (not regions) whose boxes overlap [lo, hi] as of the last
+  /// query, sorted. InvalidArgument if the box does not convert exactly to the engine's type.
+  virtual Status SpotQuery(std::span<const double> lo, std::span<const double> hi,
+                           std::vector<uint64_t>* keys) const = 0;
   /// The engine's counters.
   virtual Stats GetStats() const = 0;
   /// The engine's algorithm name.
