@@ -3,6 +3,7 @@
 
 #include <algorithm>
 #include <cmath>
+#include <set>
 #include <span>
 
 namespace bp::service {
@@ -534,9 +535,8 @@ void InterestTable::OnFrame(Flat* uncollide, Flat* collide) {
     SortFlat(&s->delta.uncollide);
     SortFlat(&s->delta.collide);
   }
-  for (const auto& [s, o] : left_inside) {
-    if (s->inside.count(o) == 0) RemoveWatch(o, s);
-  }
+  // One watch each: an object that left and entered again (another region) was watched twice.
+  for (const auto& [s, o] : left_inside) RemoveWatch(o, s);
 }
 
 void InterestTable::ForEachDelta(const std::function<void(uint64_t, const Delta&)>& f) const {
@@ -564,6 +564,32 @@ uint64_t InterestTable::SetSize(uint64_t id) const {
   uint64_t n = it->second->pairs.size();
   for (const auto& region : it->second->regions) n += region.members.size();
   return n;
+}
+
+Status InterestTable::CheckWatches() const {
+  std::multiset<std::pair<uint64_t, const State*>> want, have;
+  size_t categories = 0, producers = 0, listed = 0;
+  for (const auto& [id, s] : by_id_) {
+    for (uint64_t key : s->keys) want.emplace(key, s.get());
+    if (s->pairs_inside) {
+      for (const auto& [o, count] : s->inside) want.emplace(o, s.get());
+    }
+    categories += s->category_mask != 0 ? 1 : 0;
+    producers += s->producers.size();
+  }
+  for (const auto& [key, list] : watch_keys_) {
+    for (const State* s : list) have.emplace(key, s);
+  }
+  for (const auto& [p, list] : watch_producers_) listed += list.size();
+  if (want != have || categories != category_interests_.size() || producers != listed) {
+    return Status(StatusCode::kInternal,
+                  "watch lists: " + std::to_string(have.size()) + " key entries for " +
+                      std::to_string(want.size()) + ", " + std::to_string(listed) +
+                      " producer entries for " + std::to_string(producers) + ", " +
+                      std::to_string(category_interests_.size()) + " category interests for " +
+                      std::to_string(categories));
+  }
+  return Status::Ok();
 }
 
 bool InterestTable::Contains(uint64_t id) const { return by_id_.count(id) != 0; }

@@ -89,6 +89,9 @@ class InterestTable {
   /// whole world's counts).
   uint64_t region_objects() const { return region_refs_.size(); }
   uint64_t region_pairs() const { return region_pairs_; }
+  /// Internal unless the watch lists name exactly each interest's
+  /// keys, inside objects (with pairs_inside), producers and category criterion. For tests.
+  Status CheckWatches() const;
 
  private:
   struct State;

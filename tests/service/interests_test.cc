@@ -271,6 +271,7 @@ class InterestScene {
     ASSERT_EQ(ToSet(uncollide), expect_unc) << "frame " << frame;
     ASSERT_EQ(ToSet(collide), expect_col) << "frame " << frame;
     ASSERT_EQ(host_->Overlaps() - table_.region_pairs(), oracle_.world.size());
+    ASSERT_TRUE(table_.CheckWatches().ok()) << table_.CheckWatches().ToString();
     std::map<uint64_t, InterestTable::Delta> deltas;
     table_.ForEachDelta([&](uint64_t id, const InterestTable::Delta& d) { deltas[id] = d; });
     for (const auto& [id, d] : oracle_.interests) {
