@@ -40,8 +40,9 @@ Status Daemon::Create(const Config& config, std::unique_ptr<Daemon>* out) {
   transport::ConnectionOptions options;
   options.domain = config.dds.domain;
   options.partition = config.dds.partition;
-  options.topics = {config.dds.topics.updates, config.dds.topics.events, config.dds.topics.status,
-                    config.dds.topics.requests};
+  options.topics = {config.dds.topics.updates,  config.dds.topics.events,
+                    config.dds.topics.status,   config.dds.topics.requests,
+                    config.dds.topics.interests, config.dds.topics.replies};
   if (!config.dds.cyclone_config.empty()) {
     if (Status s = transport::ReadTextFile(config.dds.cyclone_config, &options.cyclone_xml);
         !s.ok()) {
@@ -81,8 +82,24 @@ Status Daemon::Create(const Config& config, std::unique_ptr<Daemon>* out) {
       !s.ok()) {
     return s;
   }
+  d->interest_liveliness_ = std::make_unique<dds::WriterLiveliness>();
+  d->interest_liveliness_->SetOnChange([daemon = d.get()] { daemon->waitset_.Wake(); });
+  dds::Qos interests_qos;
+  transport::qos::InterestsReader(interests_qos.get());
+  if (Status s = d->connection_->CreateReader(transport::TopicId::kInterests, interests_qos,
+                                              &d->interest_requests_,
+                                              d->interest_liveliness_.get());
+      !s.ok()) {
+    return s;
+  }
   if (Status s = d->waitset_.Attach(d->updates_); !s.ok()) return s;
   if (Status s = d->waitset_.Attach(d->requests_); !s.ok()) return s;
+  if (Status s = d->waitset_.Attach(d->interest_requests_); !s.ok()) return s;
+  d->interests_ = std::make_unique<InterestTable>(
+      d->host_.get(),
+      InterestLimits{config.limits.max_interests, config.limits.max_interest_regions,
+                     config.limits.max_interest_keys},
+      [daemon = d.get()](uint32_t producer) { return daemon->claims_.count(producer) != 0; });
   if (const std::string& path = config.logging.frame_log; !path.empty()) {
     d->frame_log_.reset(std::fopen(path.c_str(), "w"));
     if (!d->frame_log_) {
@@ -102,8 +119,9 @@ Status Daemon::Create(const Config& config, std::unique_ptr<Daemon>* out) {
 }
 
 Daemon::~Daemon() {
-  // The reader (and so the listener) outlives the waitset among the members: stop the wakes.
+  // The readers (and so the listeners) outlive the waitset among the members: stop the wakes.
   if (liveliness_) liveliness_->SetOnChange(nullptr);
+  if (interest_liveliness_) interest_liveliness_->SetOnChange(nullptr);
 }
 
 void Daemon::RequestStop() {
@@ -152,8 +170,10 @@ Status Daemon::Run() {
   auto next_expiry = Clock::time_point::max();
   auto next_snapshot = Clock::time_point::max();
   auto next_resync = Clock::time_point::max();
+  auto next_interest_expiry = Clock::time_point::max();
   while (!stop_.load()) {
-    auto wake = std::min({next_summary, next_expiry, next_snapshot, next_resync});
+    auto wake =
+        std::min({next_summary, next_expiry, next_snapshot, next_resync, next_interest_expiry});
     if (tick_mode) wake = std::min(wake, next_tick);
     const auto now = Clock::now();
     int triggered = 0;
@@ -167,9 +187,14 @@ Status Daemon::Run() {
     // At most one queue's worth per turn: under sustained load the queue never empties, and
     // ticks, summaries and a stop request must still get their turn.
     Drain(drain_rounds, /*until_stop=*/true);
+    ServeInterests();
     next_snapshot = ServeRequests();
     next_expiry = CheckProducers();
+    next_interest_expiry = CheckInterestOwners();
     next_resync = CheckResyncs();
+    // A declaration takes effect at a frame: at once when no producer's frame is open (an
+    // open one is closed by its producer, or by the next tick).
+    if (interests_changed_ && !frame_dirty_ && !tick_mode) RunFrame(0, 0, 0);
     if (tick_mode && Clock::now() >= next_tick) {
       RunFrame(0, 0, 0);
       next_tick += tick;

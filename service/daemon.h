@@ -22,8 +22,15 @@
 // run's random epoch; a batch's valid items are applied even when others
 // are rejected; no input makes Run() fail (only DDS failures do).
 //
+// Interests (interests.h): clients declare them on the interests topic; each interest's events
+// go out on a writer of its own in the interest's partition, with its own sequence, epoch and
+// snapshots; the whole-world stream is unchanged (regions never show in it). An interest whose
+// declaring writer has not been alive for producers.lease_s is dropped. Spot queries on the
+// same topic are answered between frames on the replies topic, in the client's partition.
+//
 // The code is one file per concern: daemon.cc (creation, the loop, intake), daemon_producers.cc
-// (producers over time), daemon_output.cc (frames, events, snapshots, status). Why one class of
+// (producers over time), daemon_output.cc (frames, events, snapshots, status),
+// daemon_interests.cc (interests, their streams, spot queries). Why one class of
 // about thirty members: every concern runs on the one thread of Run() and reads the others'
 // state (a frame reads the producers' resyncs, the status the intake's counters); the members
 // are grouped by concern below.
@@ -42,6 +49,7 @@
 #include "broadphase.pb.h"
 #include "config.h"
 #include "engine_host.h"
+#include "interests.h"
 #include "keep_awake.h"
 
 #include "bp/status.h"
@@ -76,6 +84,10 @@ class Daemon {
   uint64_t batches() const { return batches_total_.load(); }
   /// True once Run() is serving (its readers and writers exist and SERVING was published).
   bool serving() const { return serving_.load(); }
+  /// Interests in force.
+  uint64_t interests() const { return interests_count_.load(); }
+  /// Interest requests refused so far.
+  uint64_t interest_refusals() const { return interest_refusals_total_.load(); }
 
  private:
   // Samples a take reads at most (updates and requests).
@@ -119,6 +131,21 @@ class Daemon {
   void PublishSnapshot();
   // Writes event_msg_ (sequence already set); a failure is counted and logged.
   void WriteEventPart();
+  // Takes the interest requests that arrived (declare, drop, spot query) and serves them.
+  void ServeInterests();
+  void ServeInterestRequest(std::span<const uint8_t> payload, dds_instance_handle_t writer);
+  void AnswerSpotQuery(uint64_t client, dds_instance_handle_t writer, const wire::SpotQuery& query);
+  void RefuseInterest(uint64_t client, uint64_t interest, std::string why);
+  // Drops the interests (and reply writers) of writers not alive for producers.lease_s; returns
+  // when the next one is due (time_point::max() if none).
+  std::chrono::steady_clock::time_point CheckInterestOwners();
+  void DropInterest(uint64_t id, const char* why);
+  // After a frame: each interest's events on its stream.
+  void PublishInterestEvents(uint64_t frame);
+  // The interest's set on its stream (snapshot parts).
+  void PublishInterestSnapshot(uint64_t id);
+  // The whole world's overlapping pairs (the engine's, without the regions').
+  uint64_t WorldOverlaps() const;
   void ReportRejection(uint32_t producer, const wire::UpdateBatch* batch, Reject&& reject);
   void FlushRejections();
   void PublishStatus(wire::Health health, bool with_interval);
@@ -130,6 +157,7 @@ class Daemon {
   Config config_;
   // Before connection_: Cyclone's listener thread may call it until the reader is deleted.
   std::unique_ptr<dds::WriterLiveliness> liveliness_;
+  std::unique_ptr<dds::WriterLiveliness> interest_liveliness_;
   std::unique_ptr<EngineHost> host_;
   std::unique_ptr<KeepAwake> keep_awake_;     // frames.keep_cpus_awake_ms > 0, while Run serves
   std::atomic<unsigned> cpus_kept_awake_{0};  // its threads, for other threads to read
@@ -138,6 +166,7 @@ class Daemon {
   dds::Writer events_;
   dds::Writer status_;
   dds::Reader requests_;
+  dds::Reader interest_requests_;
   dds::WaitSet waitset_;
   std::string daemon_name_;
 
@@ -148,6 +177,8 @@ class Daemon {
   std::atomic<uint64_t> batches_total_{0};
   std::atomic<uint64_t> snapshots_published_{0};
   std::atomic<uint64_t> producers_expired_{0};
+  std::atomic<uint64_t> interests_count_{0};
+  std::atomic<uint64_t> interest_refusals_total_{0};
 
   // Frame state.
   bool frame_dirty_ = false;  // a batch was applied since the last frame
@@ -204,6 +235,32 @@ class Daemon {
   std::vector<dds::WriterLiveliness::Change> liveliness_changes_;
   std::chrono::steady_clock::time_point next_forget_{};
   std::vector<uint32_t> expired_now_;  // listed in the status report being published
+
+  // Interests: the table (after host_, which it uses), one stream per interest, one reply writer
+  // per client that asked a spot query, the declaring writers that are not alive.
+  std::unique_ptr<InterestTable> interests_;
+  struct Stream {
+    dds::Writer writer;
+    uint64_t seq = 0;
+    uint64_t epoch = 0;        // random per stream
+    bool snapshot_due = false;  // requested, waiting for limits.snapshot_interval_ms
+    std::chrono::steady_clock::time_point last_snapshot{};
+  };
+  std::unordered_map<uint64_t, Stream> streams_;
+  struct ReplyWriter {
+    dds::Writer writer;
+    dds_instance_handle_t owner = 0;
+    uint64_t seq = 0;
+  };
+  std::unordered_map<uint64_t, ReplyWriter> reply_writers_;  // by client id
+  std::unordered_map<dds_instance_handle_t, std::chrono::steady_clock::time_point>
+      interest_down_since_;
+  std::vector<dds::WriterLiveliness::Change> interest_liveliness_changes_;
+  bool interests_changed_ = false;  // a declaration or drop waits for a frame
+  std::vector<wire::InterestRefusal> pending_refusals_;
+  wire::InterestRequest interest_request_;
+  wire::SpotAnswer answer_;
+  std::vector<uint64_t> spot_keys_;
 
   // Rejections of the batch being processed.
   std::vector<wire::Rejection> pending_rejections_;

@@ -26,6 +26,7 @@ void Daemon::RunFrame(uint32_t source_producer, uint64_t source_frame, uint64_t 
   const auto start = Clock::now();
   const int64_t start_wall_ns = frame_log_ ? static_cast<int64_t>(transport::WallClockNs()) : 0;
   host_->Query(&uncollide_, &collide_);
+  interests_->OnFrame(&uncollide_, &collide_);  // the regions' pairs out, each interest's events
   const auto queried = Clock::now();
   const uint64_t frame = frames_.load() + 1;
   // Pairs of the frame: uncollides then collides, split into parts of at most max pairs.
@@ -60,9 +61,10 @@ void Daemon::RunFrame(uint32_t source_producer, uint64_t source_frame, uint64_t 
     event_msg_.set_source_frame(source_frame);
     event_msg_.set_source_sent_time_ns(source_sent_ns);
     event_msg_.set_objects(host_->Objects());
-    event_msg_.set_overlaps(host_->Overlaps());
+    event_msg_.set_overlaps(WorldOverlaps());
     WriteEventPart();
   }
+  PublishInterestEvents(frame);
   frames_.store(frame);
   frame_dirty_ = false;
   ++interval_frames_;
@@ -145,30 +147,50 @@ std::chrono::steady_clock::time_point Daemon::ServeRequests() {
                          r.payload.size());
             return;
           }
-          spdlog::debug("snapshot requested by {:016x} ({})", request_.requester(),
-                        request_.reason());
+          spdlog::debug("snapshot requested by {:016x} ({}), interest {:016x}",
+                        request_.requester(), request_.reason(), request_.interest());
+          if (request_.interest() != 0) {
+            // An interest's snapshot, on its stream only (an unknown interest has none).
+            const auto stream = streams_.find(request_.interest());
+            if (stream != streams_.end()) stream->second.snapshot_due = true;
+            return;
+          }
           ++valid;
         },
         &taken);
     if (!s.ok()) spdlog::error("reading snapshot requests: {}", s.ToString());
   }
   if (valid > 0) snapshot_due_ = true;
-  // One snapshot serves every request so far, at most one per limits.snapshot_interval_ms; a
-  // stopping daemon publishes none.
-  if (!snapshot_due_ || stop_.load()) return Clock::time_point::max();
+  // One snapshot serves every request so far, at most one per limits.snapshot_interval_ms (per
+  // stream); a stopping daemon publishes none.
+  if (stop_.load()) return Clock::time_point::max();
   const auto interval = std::chrono::milliseconds(config_.limits.snapshot_interval_ms);
   const auto now = Clock::now();
+  auto next = Clock::time_point::max();
+  for (auto& [id, stream] : streams_) {
+    if (!stream.snapshot_due) continue;
+    if (stream.last_snapshot != Clock::time_point{} && now < stream.last_snapshot + interval) {
+      next = std::min(next, stream.last_snapshot + interval);
+    } else {
+      PublishInterestSnapshot(id);
+    }
+  }
+  if (!snapshot_due_) return next;
   if (last_snapshot_ != Clock::time_point{} && now < last_snapshot_ + interval) {
-    return last_snapshot_ + interval;
+    return std::min(next, last_snapshot_ + interval);
   }
   PublishSnapshot();
   snapshot_due_ = false;
   last_snapshot_ = now;
-  return Clock::time_point::max();
+  return next;
 }
 
 void Daemon::PublishSnapshot() {
   host_->Snapshot(&snapshot_pairs_);
+  // The regions' pairs (a region key is below 2^48, so they come first) are not the world's.
+  snapshot_pairs_.erase(snapshot_pairs_.begin(),
+                        std::find_if(snapshot_pairs_.begin(), snapshot_pairs_.end(),
+                                     [](const auto& p) { return p.first >= kLocalIdLimit; }));
   snapshots_published_.fetch_add(1);  // before its parts: a reader that saw them sees the count
   const size_t pairs = snapshot_pairs_.size();
   const size_t per_part = static_cast<size_t>(config_.limits.max_pairs_per_event_batch);
@@ -186,7 +208,7 @@ void Daemon::PublishSnapshot() {
       event_msg_.add_snapshot_pairs(snapshot_pairs_[next].second);
     }
     event_msg_.set_objects(host_->Objects());
-    event_msg_.set_overlaps(host_->Overlaps());
+    event_msg_.set_overlaps(WorldOverlaps());
     WriteEventPart();
   }
   spdlog::info("snapshot of frame {}: {} pairs in {} part(s)", frames_.load(), pairs, parts);
@@ -203,7 +225,7 @@ void Daemon::PublishStatus(wire::Health health, bool with_interval) {
   status_msg_.set_time_ns(transport::WallClockNs());
   status_msg_.set_frame(frames_.load());
   status_msg_.set_objects(host_->Objects());
-  status_msg_.set_overlaps(host_->Overlaps());
+  status_msg_.set_overlaps(WorldOverlaps());
   if (with_interval) *status_msg_.mutable_interval() = last_interval_;
   for (auto& r : pending_rejections_) *status_msg_.add_rejections() = r;
   status_msg_.set_rejections_not_listed(pending_not_listed_);
@@ -220,6 +242,8 @@ void Daemon::PublishStatus(wire::Health health, bool with_interval) {
     request->set_seen_batch_seq(seen == last_batch_seq_.end() ? 0 : seen->second);
     request->set_raised(resync.raised);
   }
+  for (const auto& r : pending_refusals_) *status_msg_.add_interest_refusals() = r;
+  status_msg_.set_interests(static_cast<uint32_t>(interests_->size()));
   status_msg_.set_max_batch_items(config_.limits.max_batch_items);
   status_msg_.set_max_batch_bytes(config_.limits.max_batch_bytes);
   buffer_.clear();

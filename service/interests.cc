@@ -574,7 +574,7 @@ Status InterestTable::CheckWatches() const {
     if (s->pairs_inside) {
       for (const auto& [o, count] : s->inside) want.emplace(o, s.get());
     }
-    categories += s->category_mask != 0 ? 1 : 0;
+    if (s->category_mask != 0) ++categories;
     producers += s->producers.size();
   }
   for (const auto& [key, list] : watch_keys_) {
@@ -590,6 +590,11 @@ Status InterestTable::CheckWatches() const {
                       std::to_string(categories));
   }
   return Status::Ok();
+}
+
+uint64_t InterestTable::Owner(uint64_t id) const {
+  const auto it = by_id_.find(id);
+  return it == by_id_.end() ? 0 : it->second->owner;
 }
 
 bool InterestTable::Contains(uint64_t id) const { return by_id_.count(id) != 0; }

@@ -81,6 +81,8 @@ class InterestTable {
   bool Snapshot(uint64_t id, std::vector<std::pair<uint64_t, uint64_t>>* out) const;
   /// The interest's current set size; 0 if there is none.
   uint64_t SetSize(uint64_t id) const;
+  /// The owner of an interest (0 if there is none).
+  uint64_t Owner(uint64_t id) const;
   /// True if an interest with this id exists.
   bool Contains(uint64_t id) const;
   /// Interests in force.

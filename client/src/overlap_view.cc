@@ -96,11 +96,12 @@ Status SnapshotRequester::Create(Connection& connection, std::unique_ptr<Snapsho
   return Status::Ok();
 }
 
-Status SnapshotRequester::Request(const std::string& reason) {
+Status SnapshotRequester::Request(const std::string& reason, uint64_t interest) {
   msg_.Clear();
   msg_.set_version(wire::SCHEMA_VERSION_1);
   msg_.set_requester(requester_);
   msg_.set_reason(reason);
+  msg_.set_interest(interest);
   buffer_.clear();
   msg_.SerializeToString(&buffer_);
   return writer_.Write(++seq_, buffer_);

@@ -8,17 +8,28 @@ namespace bp::client {
 
 template <class Msg>
 Status Subscriber<Msg>::Create(Connection& connection, int32_t depth,
-                               std::unique_ptr<Subscriber>* out) {
+                               std::unique_ptr<Subscriber>* out, uint64_t interest) {
   std::unique_ptr<Subscriber> s(new Subscriber());
   dds::Qos qos;
   TopicId topic = TopicId::kStatus;
+  std::string partition;
   if constexpr (std::is_same_v<Msg, wire::EventBatch>) {
     qos::EventsReader(qos.get(), depth);
     topic = TopicId::kEvents;
+    if (interest != 0) {
+      // The interest's writer keeps its recent parts for a reader that matches it late.
+      dds_qset_durability(qos.get(), DDS_DURABILITY_TRANSIENT_LOCAL);
+      partition = transport::InterestPartition(connection.options().partition, interest);
+    }
   } else {
     qos::StatusReader(qos.get(), depth);
+    if (interest != 0) {
+      return Status(StatusCode::kInvalidArgument, "an interest has no status stream");
+    }
   }
-  if (Status st = connection.CreateReader(topic, qos, &s->reader_); !st.ok()) {
+  if (Status st = connection.CreateReader(topic, qos, &s->reader_, nullptr,
+                                          partition.empty() ? nullptr : &partition);
+      !st.ok()) {
     return st;
   }
   if (Status st = dds::WaitSet::Create(connection.participant(), &s->waitset_); !st.ok()) {

@@ -32,11 +32,13 @@ constexpr std::array<std::string_view, 6> kEngineKeys{"algorithm", "dimension", 
 constexpr std::array<std::string_view, 7> kDdsKeys{
     "domain",           "cyclone_config", "partition",   "topics",
     "write_timeout_ms", "event_history",  "update_queue"};
-constexpr std::array<std::string_view, 4> kTopicKeys{"updates", "events", "status", "requests"};
+constexpr std::array<std::string_view, 6> kTopicKeys{"updates",  "events",    "status",
+                                                      "requests", "interests", "replies"};
 constexpr std::array<std::string_view, 3> kFramesKeys{"boundary", "tick_ms", "keep_cpus_awake_ms"};
-constexpr std::array<std::string_view, 6> kLimitsKeys{
-    "max_batch_bytes",           "max_batch_items",         "max_objects",
-    "max_pairs_per_event_batch", "max_rejections_reported", "snapshot_interval_ms"};
+constexpr std::array<std::string_view, 9> kLimitsKeys{
+    "max_batch_bytes",         "max_batch_items",         "max_objects",
+    "max_pairs_per_event_batch", "max_rejections_reported", "snapshot_interval_ms",
+    "max_interests",           "max_interest_regions",    "max_interest_keys"};
 constexpr std::array<std::string_view, 4> kLoggingKeys{"level", "summary_interval_s", "file",
                                                        "frame_log"};
 constexpr std::array<std::string_view, 1> kProducersKeys{"lease_s"};
@@ -58,6 +60,9 @@ constexpr uint64_t kMinBatchBytes = 64;
 constexpr uint64_t kMaxBatchBytes = (uint64_t{1} << 31) - 1;
 // 2^26 pairs of two fixed64 keys: 1 GiB per event part, well under protobuf's 2 GiB.
 constexpr uint64_t kMaxPairsPerEventBatch = uint64_t{1} << 26;
+constexpr uint64_t kMaxInterests = 100000;
+constexpr uint64_t kMaxInterestRegions = 65536;
+constexpr uint64_t kMaxInterestKeys = uint64_t{1} << 24;
 constexpr uint64_t kU64Max = std::numeric_limits<uint64_t>::max();
 // A configuration file is a few kilobytes; refuse to slurp a device or a huge file by mistake.
 constexpr size_t kMaxConfigFileBytes = 1u << 20;
@@ -133,6 +138,8 @@ void ReadDds(YamlReader& r, const Field& section, DdsConfig* d) {
         if (topic == "events") ReadTopicName(r, t, &d->topics.events);
         if (topic == "status") ReadTopicName(r, t, &d->topics.status);
         if (topic == "requests") ReadTopicName(r, t, &d->topics.requests);
+        if (topic == "interests") ReadTopicName(r, t, &d->topics.interests);
+        if (topic == "replies") ReadTopicName(r, t, &d->topics.replies);
       });
     } else if (name == "write_timeout_ms") {
       r.ReadInt(v, 1, kMaxWriteTimeoutMs, &d->write_timeout_ms);
@@ -174,6 +181,12 @@ void ReadLimits(YamlReader& r, const Field& section, LimitsConfig* l) {
       r.ReadUint64(v, 0, kU64Max, &l->max_rejections_reported);
     } else if (name == "snapshot_interval_ms") {
       r.ReadInt(v, 0, kMaxWriteTimeoutMs, &l->snapshot_interval_ms);
+    } else if (name == "max_interests") {
+      r.ReadUint64(v, 0, kMaxInterests, &l->max_interests);
+    } else if (name == "max_interest_regions") {
+      r.ReadUint64(v, 1, kMaxInterestRegions, &l->max_interest_regions);
+    } else if (name == "max_interest_keys") {
+      r.ReadUint64(v, 1, kMaxInterestKeys, &l->max_interest_keys);
     }
   });
 }
@@ -241,11 +254,13 @@ void CheckCrossKeys(YamlReader& r, Config* c) {
     r.Warning(*tick_mark, "frames.tick_ms",
               "ignored while frames.boundary is end_of_frame (used only with tick)");
   }
-  const std::array<std::pair<std::string, const std::string*>, 4> topics{{
+  const std::array<std::pair<std::string, const std::string*>, 6> topics{{
       {"dds.topics.updates", &c->dds.topics.updates},
       {"dds.topics.events", &c->dds.topics.events},
       {"dds.topics.status", &c->dds.topics.status},
       {"dds.topics.requests", &c->dds.topics.requests},
+      {"dds.topics.interests", &c->dds.topics.interests},
+      {"dds.topics.replies", &c->dds.topics.replies},
   }};
   for (size_t j = 1; j < topics.size(); ++j) {
     for (size_t i = 0; i < j; ++i) {
@@ -425,6 +440,8 @@ std::string ConfigToYaml(const Config& c) {
   line(k2, "events", YamlString(c.dds.topics.events));
   line(k2, "status", YamlString(c.dds.topics.status));
   line(k2, "requests", YamlString(c.dds.topics.requests));
+  line(k2, "interests", YamlString(c.dds.topics.interests));
+  line(k2, "replies", YamlString(c.dds.topics.replies));
   line(k1, "write_timeout_ms", std::to_string(c.dds.write_timeout_ms));
   line(k1, "event_history", std::to_string(c.dds.event_history));
   line(k1, "update_queue", std::to_string(c.dds.update_queue));
@@ -439,6 +456,9 @@ std::string ConfigToYaml(const Config& c) {
   line(k1, "max_pairs_per_event_batch", std::to_string(c.limits.max_pairs_per_event_batch));
   line(k1, "max_rejections_reported", std::to_string(c.limits.max_rejections_reported));
   line(k1, "snapshot_interval_ms", std::to_string(c.limits.snapshot_interval_ms));
+  line(k1, "max_interests", std::to_string(c.limits.max_interests));
+  line(k1, "max_interest_regions", std::to_string(c.limits.max_interest_regions));
+  line(k1, "max_interest_keys", std::to_string(c.limits.max_interest_keys));
   y += "logging:\n";
   line(k1, "level", YamlString(c.logging.level));
   line(k1, "summary_interval_s", FormatNumber(c.logging.summary_interval_s));

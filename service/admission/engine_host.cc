@@ -404,7 +404,7 @@ class TypedHost final : public EngineHost {
                     "a box needs " + std::to_string(K) + " lo and hi values; got " +
                         std::to_string(lo.size()) + " and " + std::to_string(hi.size()));
     }
-    std::array<double, K> l, h;
+    std::array<double, static_cast<size_t>(K)> l, h;
     for (size_t a = 0; a < static_cast<size_t>(K); ++a) {
       l[a] = lo[a];
       h[a] = hi[a];

@@ -4,6 +4,8 @@
 // run time; refusals.
 #include "interests.h"
 
+#include "interest_oracle.h"
+
 #include <algorithm>
 #include <map>
 #include <random>
@@ -44,86 +46,6 @@ bool IsSortedFlat(const std::vector<uint64_t>& flat) {
   }
   return true;
 }
-
-// The oracle's model of the world and of each interest, recomputed from scratch every frame.
-template <int K>
-struct Oracle {
-  using B = Box<K, double>;
-  struct Object {
-    B box;
-    ObjectOptions options;
-  };
-  std::map<uint64_t, Object> objects;
-
-  struct Declared {
-    wire::Interest decl;
-    std::vector<std::set<uint64_t>> members;  // by region index
-    PairSet set;
-  };
-  std::map<uint64_t, Declared> interests;
-  PairSet world;
-
-  static B RegionBox(const wire::Interest& in, size_t r, double grow) {
-    B b;
-    for (int a = 0; a < K; ++a) {
-      b.lo[static_cast<size_t>(a)] = in.region_lo(static_cast<int>(r) * K + a) - grow;
-      b.hi[static_cast<size_t>(a)] = in.region_hi(static_cast<int>(r) * K + a) + grow;
-    }
-    return b;
-  }
-  static bool SeenByRegions(const ObjectOptions& o) {
-    return (o.mask & kRegionCategory) != 0 && (o.category & ~kRegionCategory) != 0;
-  }
-
-  PairSet World() const {
-    PairSet out;
-    for (auto a = objects.begin(); a != objects.end(); ++a) {
-      for (auto b = std::next(a); b != objects.end(); ++b) {
-        if (Overlaps(a->second.box, b->second.box) && Accepts(a->second.options, b->second.options)) {
-          out.emplace(a->first, b->first);
-        }
-      }
-    }
-    return out;
-  }
-
-  // Advances every interest's memberships to the current boxes and returns each one's set.
-  void Step() {
-    world = World();
-    for (auto& [id, d] : interests) {
-      const wire::Interest& in = d.decl;
-      const size_t regions = static_cast<size_t>(in.region_lo_size()) / K;
-      d.members.resize(regions);
-      std::set<uint64_t> inside;
-      d.set.clear();
-      for (size_t r = 0; r < regions; ++r) {
-        const B region = RegionBox(in, r, 0), grown = RegionBox(in, r, in.leave_margin());
-        std::set<uint64_t> next;
-        for (const auto& [key, o] : objects) {
-          if (!SeenByRegions(o.options)) continue;
-          if (Overlaps(o.box, region) || (d.members[r].count(key) && Overlaps(o.box, grown))) {
-            next.insert(key);
-          }
-        }
-        d.members[r] = next;
-        for (uint64_t key : next) {
-          inside.insert(key);
-          d.set.emplace(r, key);
-        }
-      }
-      const std::set<uint64_t> keys(in.keys().begin(), in.keys().end());
-      const std::set<uint32_t> producers(in.producers().begin(), in.producers().end());
-      for (const Pair& p : world) {
-        bool in_set = in.pairs_inside() && inside.count(p.first) && inside.count(p.second);
-        for (uint64_t k : {p.first, p.second}) {
-          in_set = in_set || keys.count(k) || producers.count(static_cast<uint32_t>(k >> 48)) ||
-                   (objects.at(k).options.category & in.category_mask()) != 0;
-        }
-        if (in_set) d.set.insert(p);
-      }
-    }
-  }
-};
 
 template <int K>
 class InterestScene {
@@ -250,8 +172,7 @@ class InterestScene {
   void Declare(const wire::Interest& in) {
     Status s = table_.Declare(in, /*owner=*/7);
     ASSERT_TRUE(s.ok()) << s.ToString();
-    auto& d = oracle_.interests[in.id()];
-    d.decl = in;
+    oracle_.Declare(in);
   }
 
   void Frame(int frame) {
@@ -334,7 +255,7 @@ class InterestScene {
   std::unique_ptr<EngineHost> host_;
   InterestTable table_;
   std::mt19937_64 rng_;
-  Oracle<K> oracle_;
+  test::InterestOracle<K> oracle_;
   uint64_t next_local_ = 1;
 };
 

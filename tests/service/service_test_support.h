@@ -285,14 +285,14 @@ class Oracle {
 inline bool SyncUntil(client::EventSubscriber& sub, client::SnapshotRequester& requests,
                       client::OverlapView& view,
                       const std::function<bool(const client::OverlapView&)>& done,
-                      std::chrono::milliseconds timeout = 15s) {
+                      std::chrono::milliseconds timeout = 15s, uint64_t interest = 0) {
   const auto deadline = std::chrono::steady_clock::now() + timeout;
   auto asked = std::chrono::steady_clock::time_point{};
   while (!(view.synced() && done(view))) {
     const auto now = std::chrono::steady_clock::now();
     if (now > deadline) return false;
     if (view.wants_snapshot() && now - asked > 500ms) {
-      EXPECT_TRUE(requests.Request("test").ok());
+      EXPECT_TRUE(requests.Request("test", interest).ok());
       asked = now;
     }
     std::vector<wire::EventBatch> parts;
@@ -307,10 +307,10 @@ inline bool SyncUntil(client::EventSubscriber& sub, client::SnapshotRequester& r
 /// SyncUntil the view is synced at daemon frame `frame` (of the epoch it follows).
 inline bool SyncTo(client::EventSubscriber& sub, client::SnapshotRequester& requests,
                    client::OverlapView& view, uint64_t frame,
-                   std::chrono::milliseconds timeout = 15s) {
+                   std::chrono::milliseconds timeout = 15s, uint64_t interest = 0) {
   return SyncUntil(
       sub, requests, view, [frame](const client::OverlapView& v) { return v.frame() == frame; },
-      timeout);
+      timeout, interest);
 }
 
 }  // namespace bp::test

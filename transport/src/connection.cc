@@ -1,6 +1,9 @@
 #include "bp/transport/connection.h"
 
+#include <cinttypes>
+#include <cstdio>
 #include <fstream>
+#include <iterator>
 #include <sstream>
 
 namespace bp::transport {
@@ -16,6 +19,22 @@ Status ReadTextFile(const std::string& path, std::string* out) {
   if (in.bad()) return Status(StatusCode::kUnavailable, "cannot read '" + path + "'");
   *out = text.str();
   return Status::Ok();
+}
+
+namespace {
+std::string Suffixed(const std::string& partition, const char* kind, uint64_t id) {
+  char hex[17];
+  std::snprintf(hex, sizeof(hex), "%016" PRIx64, id);
+  return (partition.empty() ? std::string() : partition + ".") + kind + "." + hex;
+}
+}  // namespace
+
+std::string InterestPartition(const std::string& partition, uint64_t interest) {
+  return Suffixed(partition, "interest", interest);
+}
+
+std::string ClientPartition(const std::string& partition, uint64_t client) {
+  return Suffixed(partition, "client", client);
 }
 
 namespace qos {
@@ -56,6 +75,24 @@ void RequestsReader(dds_qos_t* qos) {
   dds_qset_reliability(qos, DDS_RELIABILITY_RELIABLE, DDS_SECS(1));
   dds_qset_history(qos, DDS_HISTORY_KEEP_LAST, 64);
 }
+void InterestsWriter(dds_qos_t* qos, std::chrono::milliseconds write_timeout,
+                     std::chrono::milliseconds liveliness_lease) {
+  dds_qset_reliability(qos, DDS_RELIABILITY_RELIABLE, Ms(write_timeout));
+  dds_qset_history(qos, DDS_HISTORY_KEEP_ALL, 0);
+  dds_qset_liveliness(qos, DDS_LIVELINESS_AUTOMATIC, Ms(liveliness_lease));
+}
+void InterestsReader(dds_qos_t* qos) {
+  dds_qset_reliability(qos, DDS_RELIABILITY_RELIABLE, DDS_SECS(1));
+  dds_qset_history(qos, DDS_HISTORY_KEEP_ALL, 0);
+}
+void RepliesWriter(dds_qos_t* qos, std::chrono::milliseconds write_timeout) {
+  dds_qset_reliability(qos, DDS_RELIABILITY_RELIABLE, Ms(write_timeout));
+  dds_qset_history(qos, DDS_HISTORY_KEEP_LAST, 64);
+}
+void RepliesReader(dds_qos_t* qos) {
+  dds_qset_reliability(qos, DDS_RELIABILITY_RELIABLE, DDS_SECS(1));
+  dds_qset_history(qos, DDS_HISTORY_KEEP_LAST, 64);
+}
 }  // namespace qos
 
 Status Connection::Open(const ConnectionOptions& options, std::unique_ptr<Connection>* out) {
@@ -75,24 +112,27 @@ Status Connection::GetTopic(TopicId id, dds_entity_t* out) {
   std::lock_guard<std::mutex> lock(mutex_);
   if (topics_[index] == 0) {
     const TopicNames& names = options_.topics;
-    const std::string* name[] = {&names.updates, &names.events, &names.status, &names.requests};
+    const std::string* name[] = {&names.updates,  &names.events,    &names.status,
+                                 &names.requests, &names.interests, &names.replies};
+    static_assert(std::size(name) == kTopicCount);
     if (Status s = participant_->CreateTopic(*name[index], &topics_[index]); !s.ok()) return s;
   }
   *out = topics_[index];
   return Status::Ok();
 }
 
-Status Connection::CreateWriter(TopicId id, const dds::Qos& qos, dds::Writer* out) {
+Status Connection::CreateWriter(TopicId id, const dds::Qos& qos, dds::Writer* out,
+                                const std::string* partition) {
   dds_entity_t topic = 0;
   if (Status s = GetTopic(id, &topic); !s.ok()) return s;
-  return dds::Writer::Create(*participant_, topic, qos, out);
+  return dds::Writer::Create(*participant_, topic, qos, out, partition);
 }
 
 Status Connection::CreateReader(TopicId id, const dds::Qos& qos, dds::Reader* out,
-                                dds::WriterLiveliness* liveliness) {
+                                dds::WriterLiveliness* liveliness, const std::string* partition) {
   dds_entity_t topic = 0;
   if (Status s = GetTopic(id, &topic); !s.ok()) return s;
-  return dds::Reader::Create(*participant_, topic, qos, out, liveliness);
+  return dds::Reader::Create(*participant_, topic, qos, out, liveliness, partition);
 }
 
 }  // namespace bp::transport

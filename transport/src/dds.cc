@@ -169,10 +169,21 @@ Status Participant::CreateTopic(const std::string& name, dds_entity_t* out_topic
 }
 
 Status Writer::Create(const Participant& participant, dds_entity_t topic, const Qos& qos,
-                      Writer* out) {
-  const dds_entity_t writer = dds_create_writer(participant.publisher(), topic, qos.get(), nullptr);
+                      Writer* out, const std::string* partition) {
+  Entity publisher;
+  dds_entity_t parent = participant.publisher();
+  if (partition != nullptr) {
+    Qos pqos;
+    dds_qset_partition1(pqos.get(), partition->c_str());
+    const dds_entity_t p = dds_create_publisher(participant.get(), pqos.get(), nullptr);
+    if (p < 0) return FromRetcode(p, "creating DDS publisher for partition '" + *partition + "'");
+    publisher = Entity(p);
+    parent = p;
+  }
+  const dds_entity_t writer = dds_create_writer(parent, topic, qos.get(), nullptr);
   if (writer < 0) return FromRetcode(writer, "creating DDS writer");
   out->writer_ = Entity(writer);
+  out->publisher_ = std::move(publisher);
   return Status::Ok();
 }
 
@@ -228,17 +239,27 @@ void WriterLiveliness::SetOnChange(std::function<void()> on_change) {
 }
 
 Status Reader::Create(const Participant& participant, dds_entity_t topic, const Qos& qos,
-                      Reader* out, WriterLiveliness* liveliness) {
+                      Reader* out, WriterLiveliness* liveliness, const std::string* partition) {
+  Entity subscriber;
+  dds_entity_t parent = participant.subscriber();
+  if (partition != nullptr) {
+    Qos sqos;
+    dds_qset_partition1(sqos.get(), partition->c_str());
+    const dds_entity_t p = dds_create_subscriber(participant.get(), sqos.get(), nullptr);
+    if (p < 0) return FromRetcode(p, "creating DDS subscriber for partition '" + *partition + "'");
+    subscriber = Entity(p);
+    parent = p;
+  }
   dds_listener_t* listener = nullptr;
   if (liveliness != nullptr) {
     listener = dds_create_listener(liveliness);
     dds_lset_liveliness_changed(listener, &WriterLiveliness::OnLivelinessChanged);
   }
-  const dds_entity_t reader =
-      dds_create_reader(participant.subscriber(), topic, qos.get(), listener);
+  const dds_entity_t reader = dds_create_reader(parent, topic, qos.get(), listener);
   if (listener != nullptr) dds_delete_listener(listener);
   if (reader < 0) return FromRetcode(reader, "creating DDS reader");
   out->reader_ = Entity(reader);
+  out->subscriber_ = std::move(subscriber);
   return Status::Ok();
 }
 

@@ -14,6 +14,9 @@
 // (SnapshotRequester), again after a while if none arrives. Snapshots are published for every
 // subscriber, so a synced view skips the ones others asked for.
 //
+// The same view follows an interest's stream (InterestClient, EventSubscriber created for the
+// interest): its set is then the interest's, and its snapshots are requested for the interest.
+//
 // Exactness: the daemon publishes a snapshot between frames, with the set as of the frame
 // before it, in the same sequence as the events. A view that applies the snapshot and then
 // every later part without a gap holds exactly the daemon's set after each frame.
@@ -101,8 +104,9 @@ class SnapshotRequester {
   Status WaitForDaemon(std::chrono::milliseconds timeout) const {
     return writer_.WaitForReaders(1, timeout);
   }
-  /// Sends one request; reason is for the daemon's log ("join", "gap", ...).
-  Status Request(const std::string& reason);
+  /// Sends one request; reason is for the daemon's log ("join", "gap", ...). With interest, asks
+  /// for that interest's snapshot (published on its stream only).
+  Status Request(const std::string& reason, uint64_t interest = 0);
 
  private:
   SnapshotRequester() = default;

@@ -29,8 +29,10 @@ template <class Msg>
 class Subscriber {
  public:
   /// A subscriber on the events topic (Msg = wire::EventBatch) or the status topic
-  /// (Msg = wire::DaemonStatus), keeping the newest depth messages until polled.
-  static Status Create(Connection& connection, int32_t depth, std::unique_ptr<Subscriber>* out);
+  /// (Msg = wire::DaemonStatus), keeping the newest depth messages until polled. With interest
+  /// (events only), it receives that interest's stream (InterestClient), and nothing else.
+  static Status Create(Connection& connection, int32_t depth, std::unique_ptr<Subscriber>* out,
+                       uint64_t interest = 0);
   /// Waits until the daemon's writer has matched.
   Status WaitForDaemon(std::chrono::milliseconds timeout) const {
     return reader_.WaitForWriters(1, timeout);

@@ -13,6 +13,13 @@
 //  - status: reliable, TRANSIENT_LOCAL, KEEP_LAST 16: a late joiner gets the latest reports.
 //  - requests: reliable, KEEP_LAST (a few at the subscriber, 64 at the daemon): snapshot
 //    requests; one is enough, so losing older ones costs nothing.
+//  - interests: reliable, KEEP_ALL with AUTOMATIC liveliness (as updates): declarations are
+//    never dropped, and the daemon drops the interests of a client whose writer died.
+//  - replies: reliable, KEEP_LAST 64: spot-query answers, in the asking client's partition.
+//  An interest's events travel on the events topic in the interest's partition
+//  (InterestPartition), a client's replies in its own (ClientPartition): DDS matches a reader
+//  and a writer only when they share a partition, so other subscribers receive none of the
+//  bytes.
 //
 // Thread safety: a Connection may be shared by publishers and subscribers on several threads.
 #pragma once
@@ -35,7 +42,15 @@ struct TopicNames {
   std::string events = "bp_events";
   std::string status = "bp_status";
   std::string requests = "bp_requests";
+  std::string interests = "bp_interests";
+  std::string replies = "bp_replies";
 };
+
+/// The partition of interest `interest`'s events: "<partition>.interest.<16 hex digits>"
+/// ("interest.<hex>" in the default partition).
+std::string InterestPartition(const std::string& partition, uint64_t interest);
+/// The partition of client `client`'s replies: "<partition>.client.<16 hex digits>".
+std::string ClientPartition(const std::string& partition, uint64_t client);
 
 /// Where a deployment lives.
 struct ConnectionOptions {
@@ -68,10 +83,20 @@ void StatusReader(dds_qos_t* qos, int32_t depth);
 void RequestsWriter(dds_qos_t* qos);
 /// Requests topic, reader side (the daemon).
 void RequestsReader(dds_qos_t* qos);
+/// Interests topic, writer side (clients), with AUTOMATIC liveliness of liveliness_lease.
+void InterestsWriter(dds_qos_t* qos, std::chrono::milliseconds write_timeout,
+                     std::chrono::milliseconds liveliness_lease = std::chrono::milliseconds(1000));
+/// Interests topic, reader side (the daemon).
+void InterestsReader(dds_qos_t* qos);
+/// Replies topic, writer side (the daemon).
+void RepliesWriter(dds_qos_t* qos, std::chrono::milliseconds write_timeout);
+/// Replies topic, reader side (a client).
+void RepliesReader(dds_qos_t* qos);
 }  // namespace qos
 
-/// The four topics of a deployment.
-enum class TopicId { kUpdates, kEvents, kStatus, kRequests };
+/// The topics of a deployment.
+enum class TopicId { kUpdates, kEvents, kStatus, kRequests, kInterests, kReplies };
+inline constexpr size_t kTopicCount = 6;
 
 /// A participant of a deployment; its topics are created on first use. (With DDS Security, a
 /// participant may only create the topics its permissions cover, so each role creates only the
@@ -85,11 +110,15 @@ class Connection {
   /// The topic's handle, created on first use; the error names the topic (e.g. "Not Allowed By
   /// Security" when the permissions do not cover it).
   Status GetTopic(TopicId id, dds_entity_t* out);
-  /// A writer of topic id with qos.
-  Status CreateWriter(TopicId id, const dds::Qos& qos, dds::Writer* out);
-  /// A reader of topic id with qos (recording its writers' liveliness if given).
+  /// A writer of topic id with qos, in the connection's partition or, if partition is given, in
+  /// that one.
+  Status CreateWriter(TopicId id, const dds::Qos& qos, dds::Writer* out,
+                      const std::string* partition = nullptr);
+  /// A reader of topic id with qos (recording its writers' liveliness if given), in the
+  /// connection's partition or the one given.
   Status CreateReader(TopicId id, const dds::Qos& qos, dds::Reader* out,
-                      dds::WriterLiveliness* liveliness = nullptr);
+                      dds::WriterLiveliness* liveliness = nullptr,
+                      const std::string* partition = nullptr);
   const ConnectionOptions& options() const { return options_; }
 
  private:
@@ -97,7 +126,7 @@ class Connection {
   ConnectionOptions options_;
   std::unique_ptr<dds::Participant> participant_;
   std::mutex mutex_;                      // guards topics_
-  std::array<dds_entity_t, 4> topics_{};  // 0 until created
+  std::array<dds_entity_t, kTopicCount> topics_{};  // 0 until created
 };
 
 }  // namespace bp::transport

@@ -129,9 +129,10 @@ struct Received {
 class Writer {
  public:
   Writer() = default;
-  /// Creates a writer for topic with qos (the qos's max_blocking_time bounds Write).
+  /// Creates a writer for topic with qos (the qos's max_blocking_time bounds Write), in the
+  /// participant's partition or, if partition is given, in a publisher of that partition.
   static Status Create(const Participant& participant, dds_entity_t topic, const Qos& qos,
-                       Writer* out);
+                       Writer* out, const std::string* partition = nullptr);
   /// Publishes one envelope. DeadlineExceeded if the readers' resource limits kept it blocked
   /// beyond the writer's max_blocking_time (the envelope was not sent).
   Status Write(uint64_t seq, std::string_view payload);
@@ -144,6 +145,7 @@ class Writer {
   dds_entity_t get() const { return writer_.get(); }
 
  private:
+  Entity publisher_;  // its own publisher, when created in another partition (deleted last)
   Entity writer_;
 };
 
@@ -178,8 +180,10 @@ class Reader {
  public:
   Reader() = default;
   /// Creates a reader for topic with qos; with liveliness, it records its writers' liveliness.
+  /// In the participant's partition or, if partition is given, in a subscriber of that one.
   static Status Create(const Participant& participant, dds_entity_t topic, const Qos& qos,
-                       Reader* out, WriterLiveliness* liveliness = nullptr);
+                       Reader* out, WriterLiveliness* liveliness = nullptr,
+                       const std::string* partition = nullptr);
   /// Takes up to max envelopes and calls f on each valid one (loaned: the payload is valid only
   /// during the call). Returns the number of valid envelopes, or a negative Status via out.
   Status Take(size_t max, const std::function<void(const Received&)>& f, size_t* out_taken);
@@ -194,6 +198,7 @@ class Reader {
   dds_entity_t get() const { return reader_.get(); }
 
  private:
+  Entity subscriber_;  // its own subscriber, when created in another partition (deleted last)
   Entity reader_;
   std::vector<void*> samples_;
   std::vector<dds_sample_info_t> infos_;

@@ -1,0 +1,146 @@
+#include "bp/client/interests.h"
+
+#include <random>
+
+namespace bp::client {
+namespace {
+
+uint64_t RandomNonzero() {
+  static std::random_device random;
+  uint64_t v = 0;
+  while (v == 0) v = uint64_t{random()} << 32 | random();
+  return v;
+}
+
+}  // namespace
+
+uint64_t InterestClient::NewInterestId() { return RandomNonzero(); }
+
+Status InterestClient::Create(Connection& connection, std::unique_ptr<InterestClient>* out) {
+  std::unique_ptr<InterestClient> c(new InterestClient());
+  c->client_ = RandomNonzero();
+  dds::Qos wqos;
+  qos::InterestsWriter(wqos.get(), std::chrono::milliseconds(1000));
+  if (Status s = connection.CreateWriter(TopicId::kInterests, wqos, &c->writer_); !s.ok()) {
+    return s;
+  }
+  dds::Qos rqos;
+  qos::RepliesReader(rqos.get());
+  const std::string partition =
+      transport::ClientPartition(connection.options().partition, c->client_);
+  if (Status s = connection.CreateReader(TopicId::kReplies, rqos, &c->replies_, nullptr,
+                                         &partition);
+      !s.ok()) {
+    return s;
+  }
+  if (Status s = dds::WaitSet::Create(connection.participant(), &c->waitset_); !s.ok()) return s;
+  if (Status s = c->waitset_.Attach(c->replies_); !s.ok()) return s;
+  *out = std::move(c);
+  return Status::Ok();
+}
+
+Status InterestClient::Send() {
+  request_.set_version(wire::SCHEMA_VERSION_1);
+  request_.set_client(client_);
+  buffer_.clear();
+  if (!request_.SerializeToString(&buffer_)) {
+    return Status(StatusCode::kInvalidArgument, "the request does not serialise");
+  }
+  return writer_.Write(++seq_, buffer_);
+}
+
+Status InterestClient::Declare(const wire::Interest& interest) {
+  if (interest.id() == 0) {
+    return Status(StatusCode::kInvalidArgument, "set the interest's id (NewInterestId())");
+  }
+  request_.Clear();
+  *request_.mutable_declare() = interest;
+  if (Status s = Send(); !s.ok()) return s;
+  declared_[interest.id()] = interest;
+  return Status::Ok();
+}
+
+Status InterestClient::Drop(uint64_t id) {
+  request_.Clear();
+  request_.set_drop(id);
+  if (Status s = Send(); !s.ok()) return s;
+  declared_.erase(id);
+  return Status::Ok();
+}
+
+Status InterestClient::OnStatus(const wire::DaemonStatus& status,
+                                std::vector<wire::InterestRefusal>* refusals) {
+  if (refusals != nullptr) {
+    for (const auto& r : status.interest_refusals()) {
+      if (r.client() == client_) refusals->push_back(r);
+    }
+  }
+  if (status.epoch() == 0 || status.epoch() == epoch_) return Status::Ok();
+  const bool restarted = epoch_ != 0;
+  epoch_ = status.epoch();
+  if (!restarted) return Status::Ok();
+  for (const auto& [id, interest] : declared_) {
+    request_.Clear();
+    *request_.mutable_declare() = interest;
+    if (Status s = Send(); !s.ok()) return s;
+  }
+  return Status::Ok();
+}
+
+Status InterestClient::Query(std::span<const double> lo, std::span<const double> hi,
+                             std::chrono::milliseconds timeout, std::vector<uint64_t>* keys,
+                             uint64_t* frame) {
+  keys->clear();
+  const uint64_t query = ++next_query_;
+  request_.Clear();
+  wire::SpotQuery* q = request_.mutable_query();
+  q->set_query(query);
+  q->set_dim(static_cast<uint32_t>(lo.size()));
+  q->mutable_lo()->Add(lo.begin(), lo.end());
+  q->mutable_hi()->Add(hi.begin(), hi.end());
+  if (Status s = Send(); !s.ok()) return s;
+  const auto deadline = std::chrono::steady_clock::now() + timeout;
+  wire::SpotAnswer answer;
+  uint32_t next_part = 0;
+  for (;;) {
+    bool done = false;
+    Status failure;
+    size_t taken = 0;
+    Status st = replies_.Take(
+        64,
+        [&](const dds::Received& r) {
+          if (done || !answer.ParseFromArray(r.payload.data(), static_cast<int>(r.payload.size())) ||
+              answer.query() != query) {
+            return;  // an older query's answer, or not one
+          }
+          if (!answer.error().empty()) {
+            failure = Status(StatusCode::kInvalidArgument, answer.error());
+            done = true;
+            return;
+          }
+          if (answer.part() != next_part) {
+            failure = Status(StatusCode::kDataLoss, "spot query answer part " +
+                                                        std::to_string(next_part) + " was lost");
+            done = true;
+            return;
+          }
+          ++next_part;
+          keys->insert(keys->end(), answer.keys().begin(), answer.keys().end());
+          if (frame != nullptr) *frame = answer.frame();
+          done = answer.last_part();
+        },
+        &taken);
+    if (!st.ok()) return st;
+    if (done) return failure;
+    const auto left = deadline - std::chrono::steady_clock::now();
+    if (left <= std::chrono::nanoseconds(0)) {
+      return Status(StatusCode::kDeadlineExceeded,
+                    "no answer to the spot query within " + std::to_string(timeout.count()) +
+                        " ms (is broadphased running?)");
+    }
+    int triggered = 0;
+    if (Status w = waitset_.Wait(left, &triggered); !w.ok()) return w;
+  }
+}
+
+}  // namespace bp::client
