@@ -34,6 +34,7 @@ uint64_t Daemon::WorldOverlaps() const {
 }
 
 void Daemon::ServeInterests() {
+  if (interest_requests_.get() == 0) return;  // interests are off
   // One take per loop turn (bounded); later requests wait for the next turn.
   size_t taken = 0;
   Status s = interest_requests_.Take(
@@ -202,6 +203,7 @@ void Daemon::AnswerSpotQuery(uint64_t client, dds_instance_handle_t writer,
 }
 
 std::chrono::steady_clock::time_point Daemon::CheckInterestOwners() {
+  if (interest_requests_.get() == 0) return Clock::time_point::max();
   interest_liveliness_->TakeChanges(&interest_liveliness_changes_);
   const auto now = Clock::now();
   for (const auto& change : interest_liveliness_changes_) {

@@ -2,12 +2,21 @@
 #include "interests.h"
 
 #include <algorithm>
+#include <cinttypes>
 #include <cmath>
+#include <cstdio>
 #include <set>
 #include <span>
 
 namespace bp::service {
 namespace {
+
+// An interest's name in messages: its id in hex, as clients print it.
+std::string Name(uint64_t id) {
+  char text[32];
+  std::snprintf(text, sizeof(text), "interest %016" PRIx64, id);
+  return text;
+}
 
 // Sorts a flattened pair list by (a, b).
 void SortFlat(std::vector<uint64_t>* flat) {
@@ -65,13 +74,13 @@ InterestTable::~InterestTable() = default;
 Status InterestTable::Validate(const wire::Interest& in, uint64_t owner) const {
   auto refuse = [&](std::string why) {
     return Status(StatusCode::kInvalidArgument,
-                  "interest " + std::to_string(in.id()) + ": " + std::move(why));
+                  Name(in.id()) + ": " + std::move(why));
   };
   if (in.id() == 0) return refuse("id 0 is not an interest id (choose a random nonzero id)");
   const auto existing = by_id_.find(in.id());
   if (existing != by_id_.end() && existing->second->owner != owner) {
     return Status(StatusCode::kAlreadyExists,
-                  "interest " + std::to_string(in.id()) + " is held by another client's writer");
+                  Name(in.id()) + " is held by another client's writer");
   }
   if (existing == by_id_.end() && by_id_.size() >= limits_.max_interests) {
     return refuse("the daemon holds limits.max_interests = " +
@@ -160,7 +169,7 @@ Status InterestTable::Declare(const wire::Interest& in, uint64_t owner) {
     // The boxes were checked: only the engine itself can refuse here (it says why).
     Watch(s);
     if (fresh) (void)Drop(in.id(), owner);
-    return Status(st.code(), "interest " + std::to_string(in.id()) + ": " + st.message());
+    return Status(st.code(), Name(in.id()) + ": " + st.message());
   }
   s.pairs_inside = in.pairs_inside();
   s.keys = std::unordered_set<uint64_t>(in.keys().begin(), in.keys().end());
@@ -241,11 +250,11 @@ void InterestTable::EraseRegions(State& s, size_t r) {
 Status InterestTable::Drop(uint64_t id, uint64_t owner) {
   const auto it = by_id_.find(id);
   if (it == by_id_.end()) {
-    return Status(StatusCode::kNotFound, "interest " + std::to_string(id) + " does not exist");
+    return Status(StatusCode::kNotFound, Name(id) + " does not exist");
   }
   if (it->second->owner != owner) {
     return Status(StatusCode::kAlreadyExists,
-                  "interest " + std::to_string(id) + " is held by another client's writer");
+                  Name(id) + " is held by another client's writer");
   }
   State& s = *it->second;
   Unwatch(s);

@@ -1,7 +1,8 @@
 #!/usr/bin/env bash
 # DDS Security end to end: certificates and signed documents from scripts/make-security,
 # broadphased and bpctl as separate processes on loopback, domain $1.
-#   - an authorised producer's scene reaches the daemon and an authorised watcher gets its events;
+#   - an authorised producer's scene reaches the daemon and an authorised watcher gets its events,
+#     and those of its interest (in a sub-partition);
 #   - an intruder with a complete setup of its own (its own CAs and a permissions document that
 #     grants it everything) and a participant without security can neither publish updates (no
 #     daemon ever matches their writers) nor read events (their watchers get none);
@@ -34,6 +35,10 @@ DAEMON_PID=$!
 W1=$!
 "$BPCTL" -c intruder.yaml --wait 10 watch --seconds 12 >intruder_watch.out 2>intruder_watch.err &
 W2=$!
+# An interest: its events come in a sub-partition of world1, which the grants cover.
+"$BPCTL" -c watcher.yaml --wait 10 watch --seconds 16 --region -1e6,-1e6,-1e6,1e6,1e6,1e6 \
+  >interest_watch.out 2>interest_watch.err &
+W4=$!
 "$BPCTL" -c plain.yaml --wait 10 watch --seconds 12 >plain_watch.out 2>plain_watch.err &
 W3=$!
 sleep 2
@@ -51,7 +56,7 @@ auditor_watch_rc=$?
 sleep 1  # a periodic report after the scene's last frame
 "$BPCTL" -c auditor.yaml --wait 5 status --timeout 5 >auditor_status.out 2>&1
 auditor_status_rc=$?
-wait "$W1" "$W2" "$W3"
+wait "$W1" "$W2" "$W3" "$W4"
 
 events() { grep -cE '^[0-9]+ (collide|uncollide) ' "$1" || true; }
 check "the authorised producer published (exit 0)" test "$producer_rc" -eq 0
@@ -62,6 +67,8 @@ others() { grep -E '^[0-9]+ (collide|uncollide) ' "$1" | grep -cvE '^[0-9]+ [a-z
 check "every event it got is producer 1's" test "$(others watcher.out)" -eq 0
 check "  and its standard output holds events only" \
   test "$(grep -cvE '^[0-9]+ (collide|uncollide) [0-9]+:[0-9]+ [0-9]+:[0-9]+$' watcher.out)" -eq 0
+check "the authorised watcher's interest got its region's events" \
+  test "$(grep -cE '^[0-9]+ collide region:0 1:[0-9]+$' interest_watch.out || true)" -gt 0
 check "the intruder's scene found no daemon (exit $intruder_rc)" test "$intruder_rc" -eq 1
 check "  and says so" grep -q "no daemon" intruder_scene.log
 check "the unauthenticated scene found no daemon (exit $plain_rc)" test "$plain_rc" -eq 1
@@ -85,7 +92,7 @@ check "  and rejected nothing" grep -q "0 rejected items" daemon.log
 if ((failures > 0)); then
   echo "----- watcher.out: lines other than producer 1's events"
   grep -vE '^[0-9]+ [a-z]+ 1:[0-9]+ 1:[0-9]+$' watcher.out | head -n 15
-  for f in daemon.log watcher.err intruder_watch.out intruder_watch.err plain_watch.err intruder_scene.log \
+  for f in daemon.log watcher.err interest_watch.err intruder_watch.out intruder_watch.err plain_watch.err intruder_scene.log \
            plain_scene.log producer.log world2.log auditor_watch.out auditor_status.out; do
     echo "----- $f"; tail -n 15 "$f"
   done

@@ -275,7 +275,7 @@ const RuleCase kRuleCases[] = {
     {"MappingForString", "engine:\n  algorithm: {a: 1}\n",
      "cfg.yaml:2:14: engine.algorithm: expected a string, got a mapping"},
     {"MappingForTopics", "dds:\n  topics: [bp_a]\n",
-     "cfg.yaml:2:11: dds.topics: expected a mapping (keys: updates, events, status, requests), got a "
+     "cfg.yaml:2:11: dds.topics: expected a mapping (keys: updates, events, status, requests, interests, replies), got a "
      "sequence"},
     {"EmptyString", "dds:\n  partition:\n",
      "cfg.yaml:2:3: dds.partition: expected a string, got no value (write \"\" for an empty "
@@ -761,7 +761,7 @@ TEST(ConfigToYamlTest, WritesEveryKeyPlainWhereUnambiguous) {
         "  file: \"\"\n", "producers:\n", "  lease_s: 10.0\n"}) {
     EXPECT_TRUE(Contains(yaml, line)) << line << "---\n" << yaml;
   }
-  EXPECT_EQ(Lines(yaml).size(), 37u) << yaml;  // 6 sections + topics + 30 keys
+  EXPECT_EQ(Lines(yaml).size(), 42u) << yaml;  // 6 sections + topics + 35 keys
 }
 
 TEST(ConfigNames, AreCanonical) {

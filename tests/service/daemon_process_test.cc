@@ -393,6 +393,56 @@ TEST(DaemonProcess, AKilledProducersObjectsAreErasedAfterTheLease) {
   EXPECT_NE(log.find("producer 8: its writer has not been alive"), std::string::npos) << log;
 }
 
+// A subscriber's interest (bpctl watch --region) lives as long as its process: killed with
+// SIGKILL, its interest is dropped once its writer has not been alive for producers.lease_s.
+// bpctl query answers a spot query from the command line.
+TEST(DaemonProcess, ASubscriberKilledWithSigkillFreesItsInterest) {
+  ScratchDir scratch;
+  const std::string& dir = scratch.path();
+  service::Config c = TestConfig(kDomain);
+  const std::string config = WriteConfig(dir, ConfigText(c, /*lease_s=*/1.0));
+  Process daemon({"--config", config}, dir + "/log");
+  Watcher watcher;
+  ASSERT_NO_FATAL_FAILURE(OpenWatcher(c, &watcher));
+  RejectionCollector& status = *watcher.status;
+  Process scene({"--config", config, "scene", "-n", "300", "--rate", "50", "--producer", "8",
+                 "--seed", "5", "--quiet"},
+                dir + "/scene.log", BPCTL);
+  Process watch({"--config", config, "watch", "--region", "-1e6,-1e6,-1e6,1e6,1e6,1e6",
+                 "--leave-margin", "1", "--pairs-inside", "--exact"},
+                dir + "/watch.log", BPCTL);
+  ASSERT_TRUE(status.WaitUntil([](const wire::DaemonStatus& r) { return r.interests() == 1; },
+                               20s))
+      << ReadFile(dir + "/watch.log");
+  // Its events flow: every object enters the region.
+  const auto deadline = std::chrono::steady_clock::now() + 20s;
+  while (ReadFile(dir + "/watch.log").find("collide region:0 8:") == std::string::npos) {
+    ASSERT_LT(std::chrono::steady_clock::now(), deadline) << ReadFile(dir + "/watch.log");
+    std::this_thread::sleep_for(50ms);
+  }
+  watch.Signal(SIGKILL);
+  const auto killed = std::chrono::steady_clock::now();
+  EXPECT_EQ(watch.Wait(), -1);
+  const size_t before = status.reports().size();
+  size_t index = 0;
+  ASSERT_TRUE(status.WaitUntil(
+      [&](const wire::DaemonStatus& r) { return index++ >= before && r.interests() == 0; }, 20s))
+      << "the killed subscriber's interest was not dropped";
+  const double after =
+      std::chrono::duration<double>(std::chrono::steady_clock::now() - killed).count();
+  EXPECT_GE(after, 1.0) << "dropped before producers.lease_s ran out";
+
+  Process query({"--config", config, "query", "--box", "-1e6,-1e6,-1e6,1e6,1e6,1e6"},
+                dir + "/query.log", BPCTL);
+  EXPECT_EQ(query.Wait(), 0) << ReadFile(dir + "/query.log");
+  const std::string answer = ReadFile(dir + "/query.log");
+  EXPECT_NE(answer.find("300 objects overlap the box at frame"), std::string::npos) << answer;
+  daemon.Signal(SIGTERM);
+  EXPECT_EQ(daemon.Wait(), 0);
+  const std::string log = ReadFile(dir + "/log");
+  EXPECT_NE(log.find("dropped: its writer has not been alive"), std::string::npos) << log;
+}
+
 // A producer (bpctl scene) stopped with SIGSTOP for 4 s: longer than Cyclone's
 // participant lease (2 s), shorter than producers.lease_s (10 s). DDS drops it and discovers it
 // again, and batches around the stall may be lost; the daemon asks it to restate. It keeps its

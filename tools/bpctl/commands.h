@@ -54,8 +54,29 @@ struct WatchOptions {
   /// With a path: one CSV line per frame (frame, the scene's stamp, the daemon's publication of
   /// the last part, arrival here; nanoseconds of CLOCK_REALTIME), for latency analysis.
   std::string latency_log;
+  /// An interest (any of the following set): only its events, on a stream of its own.
+  std::vector<std::string> regions;  ///< each "x0,y0[,z0],x1,y1[,z1]"
+  double leave_margin = 0;           ///< regions: leave only this far beyond the region
+  bool pairs_inside = false;         ///< regions: also the object pairs inside them
+  std::vector<std::string> keys;     ///< each "producer:id"
+  std::vector<uint32_t> producers;
+  uint64_t category_mask = 0;        ///< pairs with an object of these category bits
 };
 int Watch(const Common& common, const WatchOptions& options);
+
+struct QueryOptions {
+  std::string box;         ///< "x0,y0[,z0],x1,y1[,z1]"
+  double timeout_s = 5.0;  ///< for the answer (after the daemon was found)
+};
+/// bpctl query: the objects whose boxes overlap a box now, one per line.
+int Query(const Common& common, const QueryOptions& options);
+
+/// Parses "x0,y0[,z0],x1,y1[,z1]" (2K finite numbers) into lo and hi; false with *error.
+bool ParseBox(const std::string& text, std::vector<double>* lo, std::vector<double>* hi,
+              std::string* error);
+/// The interest of a watch's options; false with *error (a bad argument). Empty interest (id 0)
+/// if none is asked for.
+bool BuildInterest(const WatchOptions& options, wire::Interest* out, std::string* error);
 
 struct StatusOptions {
   bool follow = false;

@@ -18,7 +18,8 @@ std::unique_ptr<transport::Connection> Connect(const Common& common) {
   transport::ConnectionOptions options;
   options.domain = dds.domain;
   options.partition = dds.partition;
-  options.topics = {dds.topics.updates, dds.topics.events, dds.topics.status, dds.topics.requests};
+  options.topics = {dds.topics.updates,  dds.topics.events,    dds.topics.status,
+                    dds.topics.requests, dds.topics.interests, dds.topics.replies};
   if (!dds.cyclone_config.empty()) {
     if (Status s = transport::ReadTextFile(dds.cyclone_config, &options.cyclone_xml); !s.ok()) {
       std::fprintf(stderr, "bpctl: dds.cyclone_config: %s\n", s.ToString().c_str());
@@ -49,6 +50,8 @@ Status WaitInterruptibly(double timeout_s,
 }
 
 std::string KeyName(uint64_t key) {
+  // On an interest's stream, keys below 2^48 are its regions (by declaration index).
+  if (key < service::kLocalIdLimit) return "region:" + std::to_string(key);
   return std::to_string(key >> service::kProducerShift) + ":" +
          std::to_string(key & (service::kLocalIdLimit - 1));
 }

@@ -69,6 +69,31 @@ int main(int argc, char** argv) {
   watch_cmd->add_flag("--exact", watch.exact,
                       "keep the overlap set (snapshot + events) and check it against the "
                       "daemon's count after every frame; exit 1 on a difference");
+  watch_cmd->add_option("--region", watch.regions,
+                        "an interest: objects entering and leaving this box, "
+                        "x0,y0,z0,x1,y1,z1 (repeat for several regions)");
+  watch_cmd->add_option("--leave-margin", watch.leave_margin,
+                        "with --region: an object leaves only this far beyond the region");
+  watch_cmd->add_flag("--pairs-inside", watch.pairs_inside,
+                      "with --region: also the events of object pairs inside the regions");
+  watch_cmd->add_option("--key", watch.keys,
+                        "an interest: events of pairs involving this object, producer:id "
+                        "(repeatable)");
+  watch_cmd->add_option("--producer", watch.producers,
+                        "an interest: events of pairs involving this producer's objects "
+                        "(repeatable)")
+      ->check(CLI::Range(1, 65535));
+  watch_cmd->add_option("--category", watch.category_mask,
+                        "an interest: events of pairs with an object of these category bits "
+                        "(a mask, e.g. 4 or 0x4)");
+
+  bp::bpctl::QueryOptions query;
+  auto* query_cmd =
+      app.add_subcommand("query", "list the objects whose boxes overlap a box now (spot query)");
+  query_cmd->add_option("--box", query.box, "x0,y0,z0,x1,y1,z1 (or x0,y0,x1,y1 in 2-D)")
+      ->required();
+  query_cmd->add_option("--timeout", query.timeout_s, "seconds to wait for the answer")
+      ->check(CLI::PositiveNumber);
 
   bp::bpctl::StatusOptions status;
   auto* status_cmd = app.add_subcommand("status", "show the daemon's health and statistics");
@@ -137,6 +162,7 @@ int main(int argc, char** argv) {
   }
   if (*watch_cmd) return bp::bpctl::Watch(common, watch);
   if (*status_cmd) return bp::bpctl::ShowStatus(common, status);
+  if (*query_cmd) return bp::bpctl::Query(common, query);
   if (*record_cmd) return bp::bpctl::Record(common, record);
   if (*replay_cmd) return bp::bpctl::Replay(common, replay);
   if (*check_cmd) return bp::bpctl::Check(common, check);

@@ -8,6 +8,7 @@
 
 #include "common.h"
 
+#include "bp/client/interests.h"
 #include "bp/client/overlap_view.h"
 #include "bp/client/subscriber.h"
 #include "bp/client/update_publisher.h"
@@ -47,15 +48,61 @@ int Watch(const Common& common, const WatchOptions& options) {
     }
     std::fprintf(log_file.get(), "frame,sent_ns,published_ns,arrived_ns\n");
   }
+  wire::Interest interest;
+  std::string error;
+  if (!BuildInterest(options, &interest, &error)) {
+    std::fprintf(stderr, "bpctl watch: %s\n", error.c_str());
+    return 2;
+  }
   auto connection = Connect(common);
   if (!connection) return 1;
   std::unique_ptr<client::EventSubscriber> sub;
-  if (Status s = client::EventSubscriber::Create(*connection, options.depth, &sub); !s.ok()) {
+  if (Status s = client::EventSubscriber::Create(*connection, options.depth, &sub, interest.id());
+      !s.ok()) {
     std::fprintf(stderr, "bpctl watch: %s\n", s.ToString().c_str());
     return 1;
   }
-  if (Status s = WaitInterruptibly(
-          common.wait_s, [&](std::chrono::milliseconds t) { return sub->WaitForDaemon(t); });
+  // With an interest: declared once the daemon is found, watched for refusals on the status
+  // topic (and declared again to a restarted daemon), dropped on the way out.
+  std::unique_ptr<client::InterestClient> interests;
+  std::unique_ptr<client::StatusSubscriber> status;
+  if (interest.id() != 0) {
+    Status s = client::InterestClient::Create(*connection, &interests);
+    if (s.ok()) s = client::StatusSubscriber::Create(*connection, 64, &status);
+    if (s.ok()) {
+      s = WaitInterruptibly(common.wait_s, [&](std::chrono::milliseconds t) {
+        return interests->WaitForDaemon(t);
+      });
+    }
+    if (s.ok()) s = interests->Declare(interest);
+    if (!s.ok()) {
+      std::fprintf(stderr, "bpctl watch: cannot declare the interest: %s\n", s.ToString().c_str());
+      return 1;
+    }
+    std::fprintf(stderr,
+                 "bpctl watch: interest %016llx: %d region(s), %d key(s), %d producer(s), "
+                 "category mask %llx\n",
+                 static_cast<unsigned long long>(interest.id()), interest.region_lo_size() /
+                     std::max(1, static_cast<int>(interest.dim())),
+                 interest.keys_size(), interest.producers_size(),
+                 static_cast<unsigned long long>(interest.category_mask()));
+  }
+  struct DropOnExit {
+    client::InterestClient* client;
+    uint64_t id;
+    ~DropOnExit() {
+      if (client != nullptr) (void)client->Drop(id);
+    }
+  } drop_on_exit{interests.get(), interest.id()};
+  std::vector<wire::DaemonStatus> reports;
+  std::vector<wire::InterestRefusal> refusals;
+  // (An interest's stream has no writer until the daemon accepts it: the daemon was found
+  // through the interests topic, and a refusal comes on the status topic.)
+  if (Status s = interests ? Status::Ok()
+                           : WaitInterruptibly(common.wait_s,
+                                               [&](std::chrono::milliseconds t) {
+                                                 return sub->WaitForDaemon(t);
+                                               });
       !s.ok()) {
     std::fprintf(stderr, "bpctl watch: no daemon on domain %u partition '%s' (%s)\n",
                  common.config.dds.domain, common.config.dds.partition.c_str(),
@@ -95,6 +142,24 @@ int Watch(const Common& common, const WatchOptions& options) {
   while (!StopRequested()) {
     if (options.seconds > 0 && SecondsSince(start) >= options.seconds) break;
     if (options.frames > 0 && frames >= options.frames) break;
+    if (status) {
+      reports.clear();
+      refusals.clear();
+      Status s = status->Poll(std::chrono::milliseconds(0), &reports);
+      for (const auto& r : reports) {
+        if (s.ok()) s = interests->OnStatus(r, &refusals);
+      }
+      if (!s.ok()) {
+        std::fprintf(stderr, "bpctl watch: %s\n", s.ToString().c_str());
+        return 1;
+      }
+      for (const auto& r : refusals) {
+        if (r.interest() != interest.id()) continue;
+        std::fprintf(stderr, "bpctl watch: the daemon refused the interest: %s\n",
+                     r.message().c_str());
+        return 1;
+      }
+    }
     batches.clear();
     if (Status s = sub->Poll(std::chrono::milliseconds(100), &batches); !s.ok()) {
       std::fprintf(stderr, "bpctl watch: %s\n", s.ToString().c_str());
@@ -118,7 +183,7 @@ int Watch(const Common& common, const WatchOptions& options) {
       }
       const auto now = std::chrono::steady_clock::now();
       if (view.wants_snapshot() && now - asked > std::chrono::seconds(1)) {
-        (void)requests->Request(view.resyncs() == 0 ? "join" : "resync");
+        (void)requests->Request(view.resyncs() == 0 ? "join" : "resync", interest.id());
         asked = now;
       }
     }
@@ -292,12 +357,13 @@ int ShowStatus(const Common& common, const StatusOptions& options) {
       any = true;
       std::printf(
           "%s: %s, epoch %016llx, engine %s %u-D %s, frame %llu, objects %llu, overlaps %llu, "
-          "producers %u (%llu expired), rejected %llu, event write failures %llu\n",
+          "producers %u (%llu expired), interests %u, rejected %llu, event write failures "
+          "%llu\n",
           r.daemon().c_str(), HealthName(r.health()), static_cast<unsigned long long>(r.epoch()),
           r.engine().c_str(), r.dim(), r.coordinate().c_str(),
           static_cast<unsigned long long>(r.frame()), static_cast<unsigned long long>(r.objects()),
           static_cast<unsigned long long>(r.overlaps()), r.producers(),
-          static_cast<unsigned long long>(r.producers_expired()),
+          static_cast<unsigned long long>(r.producers_expired()), r.interests(),
           static_cast<unsigned long long>(r.rejected_total()),
           static_cast<unsigned long long>(r.event_write_failures()));
       if (r.has_interval() && r.interval().seconds() > 0) {
@@ -318,6 +384,10 @@ int ShowStatus(const Common& common, const StatusOptions& options) {
       for (const auto& j : r.rejections()) {
         std::printf("  rejected (producer %u, frame %llu): %s\n", j.producer(),
                     static_cast<unsigned long long>(j.frame()), j.message().c_str());
+      }
+      for (const auto& j : r.interest_refusals()) {
+        std::printf("  interest refused (client %016llx): %s\n",
+                    static_cast<unsigned long long>(j.client()), j.message().c_str());
       }
       if (r.rejections_not_listed() > 0) {
         std::printf("  ... and %llu more rejections\n",
