@@ -40,8 +40,8 @@ Status Daemon::Create(const Config& config, std::unique_ptr<Daemon>* out) {
   transport::ConnectionOptions options;
   options.domain = config.dds.domain;
   options.partition = config.dds.partition;
-  options.topics = {config.dds.topics.updates,  config.dds.topics.events,
-                    config.dds.topics.status,   config.dds.topics.requests,
+  options.topics = {config.dds.topics.updates,   config.dds.topics.events,
+                    config.dds.topics.status,    config.dds.topics.requests,
                     config.dds.topics.interests, config.dds.topics.replies};
   if (!config.dds.cyclone_config.empty()) {
     if (Status s = transport::ReadTextFile(config.dds.cyclone_config, &options.cyclone_xml);
@@ -88,9 +88,9 @@ Status Daemon::Create(const Config& config, std::unique_ptr<Daemon>* out) {
   transport::qos::InterestsReader(interests_qos.get());
   // Without the interests topic (DDS Security permissions that predate it), the daemon serves
   // the whole world only.
-  if (Status s = d->connection_->CreateReader(transport::TopicId::kInterests, interests_qos,
-                                              &d->interest_requests_,
-                                              d->interest_liveliness_.get());
+  if (Status s =
+          d->connection_->CreateReader(transport::TopicId::kInterests, interests_qos,
+                                       &d->interest_requests_, d->interest_liveliness_.get());
       !s.ok()) {
     spdlog::warn("interests are off: {}", s.ToString());
   }

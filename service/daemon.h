@@ -242,7 +242,7 @@ class Daemon {
   struct Stream {
     dds::Writer writer;
     uint64_t seq = 0;
-    uint64_t epoch = 0;        // random per stream
+    uint64_t epoch = 0;         // random per stream
     bool snapshot_due = false;  // requested, waiting for limits.snapshot_interval_ms
     std::chrono::steady_clock::time_point last_snapshot{};
   };

@@ -93,8 +93,7 @@ void Daemon::ServeInterestRequest(std::span<const uint8_t> payload, dds_instance
                                      std::chrono::milliseconds(config_.dds.write_timeout_ms));
         // A subscriber whose reader matches the new writer late still receives the recent parts.
         dds_qset_durability(qos.get(), DDS_DURABILITY_TRANSIENT_LOCAL);
-        const std::string partition =
-            transport::InterestPartition(config_.dds.partition, in.id());
+        const std::string partition = transport::InterestPartition(config_.dds.partition, in.id());
         if (Status st = connection_->CreateWriter(transport::TopicId::kEvents, qos,
                                                   &stream->second.writer, &partition);
             !st.ok()) {
@@ -147,14 +146,16 @@ void Daemon::AnswerSpotQuery(uint64_t client, dds_instance_handle_t writer,
   auto [reply, fresh] = reply_writers_.try_emplace(client);
   if (fresh) {
     dds::Qos qos;
-    transport::qos::RepliesWriter(qos.get(), std::chrono::milliseconds(config_.dds.write_timeout_ms));
+    transport::qos::RepliesWriter(qos.get(),
+                                  std::chrono::milliseconds(config_.dds.write_timeout_ms));
     const std::string partition = transport::ClientPartition(config_.dds.partition, client);
     if (Status st = connection_->CreateWriter(transport::TopicId::kReplies, qos,
                                               &reply->second.writer, &partition);
         !st.ok()) {
       reply_writers_.erase(reply);
-      RefuseInterest(client, 0, "spot query " + std::to_string(query.query()) +
-                                    ": its reply writer cannot be created: " + st.ToString());
+      RefuseInterest(client, 0,
+                     "spot query " + std::to_string(query.query()) +
+                         ": its reply writer cannot be created: " + st.ToString());
       return;
     }
   }

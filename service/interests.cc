@@ -73,8 +73,7 @@ InterestTable::~InterestTable() = default;
 
 Status InterestTable::Validate(const wire::Interest& in, uint64_t owner) const {
   auto refuse = [&](std::string why) {
-    return Status(StatusCode::kInvalidArgument,
-                  Name(in.id()) + ": " + std::move(why));
+    return Status(StatusCode::kInvalidArgument, Name(in.id()) + ": " + std::move(why));
   };
   if (in.id() == 0) return refuse("id 0 is not an interest id (choose a random nonzero id)");
   const auto existing = by_id_.find(in.id());
@@ -123,9 +122,11 @@ Status InterestTable::Validate(const wire::Interest& in, uint64_t owner) const {
       return refuse("region " + std::to_string(r) + " grown by leave_margin: " + s.message());
     }
   }
-  const size_t listed = static_cast<size_t>(in.keys_size()) + static_cast<size_t>(in.producers_size());
+  const size_t listed =
+      static_cast<size_t>(in.keys_size()) + static_cast<size_t>(in.producers_size());
   if (listed > limits_.max_keys) {
-    return refuse(std::to_string(listed) + " keys and producers exceed limits.max_interest_keys = " +
+    return refuse(std::to_string(listed) +
+                  " keys and producers exceed limits.max_interest_keys = " +
                   std::to_string(limits_.max_keys));
   }
   for (int i = 0; i < in.keys_size(); ++i) {
@@ -145,8 +146,7 @@ Status InterestTable::Validate(const wire::Interest& in, uint64_t owner) const {
                     " is unknown (no writer holds it now)");
     }
   }
-  if (regions == 0 && in.keys_size() == 0 && in.producers_size() == 0 &&
-      in.category_mask() == 0) {
+  if (regions == 0 && in.keys_size() == 0 && in.producers_size() == 0 && in.category_mask() == 0) {
     return refuse("it declares nothing (no region, key, producer or category); drop it instead");
   }
   if (in.pairs_inside() && regions == 0) return refuse("pairs_inside needs a region");
@@ -218,7 +218,8 @@ Status InterestTable::PlaceRegions(State& s, const wire::Interest& in) {
     region.gone = false;
     region.enter_key = next_region_key_++;
     region.leave_key = grown ? next_region_key_++ : region.enter_key;
-    if (Status st = host_->PlaceRegion(region.enter_key, rlo, rhi, false, true); !st.ok()) return st;
+    if (Status st = host_->PlaceRegion(region.enter_key, rlo, rhi, false, true); !st.ok())
+      return st;
     region_refs_[region.enter_key] = RegionRef{&s, static_cast<uint32_t>(r), true, !grown};
     if (grown) {
       if (Status st = host_->PlaceRegion(region.leave_key, lo, hi, true, true); !st.ok()) return st;
@@ -253,8 +254,7 @@ Status InterestTable::Drop(uint64_t id, uint64_t owner) {
     return Status(StatusCode::kNotFound, Name(id) + " does not exist");
   }
   if (it->second->owner != owner) {
-    return Status(StatusCode::kAlreadyExists,
-                  Name(id) + " is held by another client's writer");
+    return Status(StatusCode::kAlreadyExists, Name(id) + " is held by another client's writer");
   }
   State& s = *it->second;
   Unwatch(s);
@@ -306,9 +306,8 @@ void InterestTable::Unwatch(State& s) {
     list.erase(std::remove(list.begin(), list.end(), &s), list.end());
     if (list.empty()) watch_producers_.erase(p);
   }
-  category_interests_.erase(
-      std::remove(category_interests_.begin(), category_interests_.end(), &s),
-      category_interests_.end());
+  category_interests_.erase(std::remove(category_interests_.begin(), category_interests_.end(), &s),
+                            category_interests_.end());
 }
 
 bool InterestTable::Predicate(const State& s, uint64_t a, uint64_t b) const {
@@ -320,8 +319,8 @@ bool InterestTable::Predicate(const State& s, uint64_t a, uint64_t b) const {
       if (std::binary_search(s.producers.begin(), s.producers.end(), p)) return true;
     }
   }
-  if (s.category_mask != 0 &&
-      ((host_->Category(a) & s.category_mask) != 0 || (host_->Category(b) & s.category_mask) != 0)) {
+  if (s.category_mask != 0 && ((host_->Category(a) & s.category_mask) != 0 ||
+                               (host_->Category(b) & s.category_mask) != 0)) {
     return true;
   }
   return false;
@@ -478,7 +477,8 @@ void InterestTable::OnFrame(Flat* uncollide, Flat* collide) {
       if (s.pairs_inside) AddWatch(o, &s);
     }
   }
-  uncollide->erase(uncollide->begin(), uncollide->begin() + static_cast<std::ptrdiff_t>(2 * region_unc));
+  uncollide->erase(uncollide->begin(),
+                   uncollide->begin() + static_cast<std::ptrdiff_t>(2 * region_unc));
   collide->erase(collide->begin(), collide->begin() + static_cast<std::ptrdiff_t>(2 * region_col));
 
   // 2. The object pairs.

@@ -44,8 +44,8 @@ namespace bp::service {
 /// Limits on interests (config `limits`).
 struct InterestLimits {
   uint64_t max_interests = 1000;
-  uint64_t max_regions = 256;   ///< per interest
-  uint64_t max_keys = 100000;   ///< per interest: keys + producers
+  uint64_t max_regions = 256;  ///< per interest
+  uint64_t max_keys = 100000;  ///< per interest: keys + producers
 };
 
 class InterestTable {
@@ -137,7 +137,7 @@ class InterestTable {
   std::function<bool(uint32_t)> known_producer_;
   std::unordered_map<uint64_t, std::unique_ptr<State>> by_id_;
   std::unordered_map<uint64_t, RegionRef> region_refs_;  // engine key -> region
-  uint64_t next_region_key_ = 1;                           // below 2^48, never reused
+  uint64_t next_region_key_ = 1;                         // below 2^48, never reused
   uint64_t region_pairs_ = 0;
   // Watch lists: the interests a pair with this key (or producer) may concern. A key is listed
   // once per reason (a listed key, inside a region of an interest with pairs_inside).

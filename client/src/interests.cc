@@ -28,8 +28,8 @@ Status InterestClient::Create(Connection& connection, std::unique_ptr<InterestCl
   qos::RepliesReader(rqos.get());
   const std::string partition =
       transport::ClientPartition(connection.options().partition, c->client_);
-  if (Status s = connection.CreateReader(TopicId::kReplies, rqos, &c->replies_, nullptr,
-                                         &partition);
+  if (Status s =
+          connection.CreateReader(TopicId::kReplies, rqos, &c->replies_, nullptr, &partition);
       !s.ok()) {
     return s;
   }
@@ -109,7 +109,8 @@ Status InterestClient::Query(std::span<const double> lo, std::span<const double>
     Status st = replies_.Take(
         64,
         [&](const dds::Received& r) {
-          if (done || !answer.ParseFromArray(r.payload.data(), static_cast<int>(r.payload.size())) ||
+          if (done ||
+              !answer.ParseFromArray(r.payload.data(), static_cast<int>(r.payload.size())) ||
               answer.query() != query) {
             return;  // an older query's answer, or not one
           }
@@ -119,8 +120,8 @@ Status InterestClient::Query(std::span<const double> lo, std::span<const double>
             return;
           }
           if (answer.part() != next_part) {
-            failure = Status(StatusCode::kDataLoss, "spot query answer part " +
-                                                        std::to_string(next_part) + " was lost");
+            failure = Status(StatusCode::kDataLoss,
+                             "spot query answer part " + std::to_string(next_part) + " was lost");
             done = true;
             return;
           }
@@ -134,9 +135,9 @@ Status InterestClient::Query(std::span<const double> lo, std::span<const double>
     if (done) return failure;
     const auto left = deadline - std::chrono::steady_clock::now();
     if (left <= std::chrono::nanoseconds(0)) {
-      return Status(StatusCode::kDeadlineExceeded,
-                    "no answer to the spot query within " + std::to_string(timeout.count()) +
-                        " ms (is broadphased running?)");
+      return Status(StatusCode::kDeadlineExceeded, "no answer to the spot query within " +
+                                                       std::to_string(timeout.count()) +
+                                                       " ms (is broadphased running?)");
     }
     int triggered = 0;
     if (Status w = waitset_.Wait(left, &triggered); !w.ok()) return w;

@@ -33,12 +33,12 @@ constexpr std::array<std::string_view, 7> kDdsKeys{
     "domain",           "cyclone_config", "partition",   "topics",
     "write_timeout_ms", "event_history",  "update_queue"};
 constexpr std::array<std::string_view, 6> kTopicKeys{"updates",  "events",    "status",
-                                                      "requests", "interests", "replies"};
+                                                     "requests", "interests", "replies"};
 constexpr std::array<std::string_view, 3> kFramesKeys{"boundary", "tick_ms", "keep_cpus_awake_ms"};
 constexpr std::array<std::string_view, 9> kLimitsKeys{
-    "max_batch_bytes",         "max_batch_items",         "max_objects",
-    "max_pairs_per_event_batch", "max_rejections_reported", "snapshot_interval_ms",
-    "max_interests",           "max_interest_regions",    "max_interest_keys"};
+    "max_batch_bytes",         "max_batch_items",      "max_objects",   "max_pairs_per_event_batch",
+    "max_rejections_reported", "snapshot_interval_ms", "max_interests", "max_interest_regions",
+    "max_interest_keys"};
 constexpr std::array<std::string_view, 4> kLoggingKeys{"level", "summary_interval_s", "file",
                                                        "frame_log"};
 constexpr std::array<std::string_view, 1> kProducersKeys{"lease_s"};

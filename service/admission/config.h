@@ -56,10 +56,10 @@ struct EngineConfig {
 
 /// The DDS topic names (`dds.topics`).
 struct TopicsConfig {
-  std::string updates = "bp_updates";    ///< update batches in
-  std::string events = "bp_events";      ///< event batches out
-  std::string status = "bp_status";      ///< daemon status out
-  std::string requests = "bp_requests";  ///< snapshot requests in
+  std::string updates = "bp_updates";      ///< update batches in
+  std::string events = "bp_events";        ///< event batches out
+  std::string status = "bp_status";        ///< daemon status out
+  std::string requests = "bp_requests";    ///< snapshot requests in
   std::string interests = "bp_interests";  ///< interest declarations and spot queries in
   std::string replies = "bp_replies";      ///< spot-query answers out
 
@@ -109,9 +109,9 @@ struct LimitsConfig {
   /// 0 .. 60000 ms: at most one snapshot per this interval; requests in between wait for it
   /// (one snapshot serves them all), so subscribers that keep asking cannot flood the topic.
   int snapshot_interval_ms = 100;
-  uint64_t max_interests = 1000;          ///< 0 .. 100000 interests in force (0: none allowed)
-  uint64_t max_interest_regions = 256;    ///< 1 .. 65536 regions per interest
-  uint64_t max_interest_keys = 100000;    ///< 1 .. 2^24 keys + producers per interest
+  uint64_t max_interests = 1000;        ///< 0 .. 100000 interests in force (0: none allowed)
+  uint64_t max_interest_regions = 256;  ///< 1 .. 65536 regions per interest
+  uint64_t max_interest_keys = 100000;  ///< 1 .. 2^24 keys + producers per interest
 
   /// Member-wise equality.
   bool operator==(const LimitsConfig&) const = default;

@@ -415,7 +415,8 @@ class TypedHost final : public EngineHost {
     }
     wire::RejectReason reason{};
     std::string why;
-    if (!ConvertBox(l.data(), h.data(), box, &reason, &why)) return Status(StatusCode::kInvalidArgument, why);
+    if (!ConvertBox(l.data(), h.data(), box, &reason, &why))
+      return Status(StatusCode::kInvalidArgument, why);
     return Status::Ok();
   }
   std::unique_ptr<Engine> engine_;

@@ -35,8 +35,8 @@ struct Follower {
 // Reads a follower's stream until it is synced and quiet for a while (the daemon wrote the parts
 // of the frame the caller waited for before the caller saw that frame's world parts).
 void Settle(Follower& f, client::SnapshotRequester& requests) {
-  ASSERT_TRUE(SyncUntil(*f.sub, requests, f.view, [](const client::OverlapView&) { return true; },
-                        15s, f.id))
+  ASSERT_TRUE(SyncUntil(
+      *f.sub, requests, f.view, [](const client::OverlapView&) { return true; }, 15s, f.id))
       << "interest " << f.id << ": " << f.view.last_loss();
   for (auto quiet_since = std::chrono::steady_clock::now();
        std::chrono::steady_clock::now() - quiet_since < 80ms;) {
@@ -45,8 +45,8 @@ void Settle(Follower& f, client::SnapshotRequester& requests) {
     if (!parts.empty()) quiet_since = std::chrono::steady_clock::now();
     for (const auto& p : parts) {
       EXPECT_EQ(p.interest(), f.id);
-      ASSERT_FALSE(f.view.Apply(p)) << "interest " << f.id << " lost its sync: "
-                                     << f.view.last_loss();
+      ASSERT_FALSE(f.view.Apply(p))
+          << "interest " << f.id << " lost its sync: " << f.view.last_loss();
     }
   }
   ASSERT_TRUE(f.view.synced());
@@ -137,7 +137,8 @@ TEST(DaemonInterests, EachKindOnItsOwnStreamMatchesTheOracle) {
   region(&declared[1], 0.1, 0.3);  // two regions, no margin
   for (int a = 0; a < 3; ++a) declared[1].add_region_lo(std::floor(side * 0.7));
   for (int a = 0; a < 3; ++a) declared[1].add_region_hi(std::floor(side * 0.9));
-  for (uint64_t id : {3u, 50u, 120u, 201u, 333u, 399u}) declared[2].add_keys(service::GlobalKey(1, id));
+  for (uint64_t id : {3u, 50u, 120u, 201u, 333u, 399u})
+    declared[2].add_keys(service::GlobalKey(1, id));
   declared[3].add_producers(2);
   declared[4].set_category_mask(4);
   std::vector<Follower> followers(declared.size());
@@ -151,7 +152,8 @@ TEST(DaemonInterests, EachKindOnItsOwnStreamMatchesTheOracle) {
     oracle.Declare(in);
   }
   const auto deadline = std::chrono::steady_clock::now() + 10s;
-  while (daemon.daemon().interests() < declared.size() && std::chrono::steady_clock::now() < deadline) {
+  while (daemon.daemon().interests() < declared.size() &&
+         std::chrono::steady_clock::now() < deadline) {
     std::this_thread::sleep_for(5ms);
   }
   ASSERT_EQ(daemon.daemon().interests(), declared.size());
@@ -214,7 +216,8 @@ TEST(DaemonInterests, EachKindOnItsOwnStreamMatchesTheOracle) {
 
   // Spot queries: equal to the oracle's answer (as of the last frame).
   for (double from : {0.0, 0.25, 0.5}) {
-    const std::vector<double> lo(3, std::floor(side * from)), hi(3, std::floor(side * (from + 0.3)));
+    const std::vector<double> lo(3, std::floor(side * from)),
+        hi(3, std::floor(side * (from + 0.3)));
     std::vector<uint64_t> keys;
     uint64_t at_frame = 0;
     BP_ASSERT_OK(interests->Query(lo, hi, 10s, &keys, &at_frame));

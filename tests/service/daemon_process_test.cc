@@ -411,8 +411,7 @@ TEST(DaemonProcess, ASubscriberKilledWithSigkillFreesItsInterest) {
   Process watch({"--config", config, "watch", "--region", "-1e6,-1e6,-1e6,1e6,1e6,1e6",
                  "--leave-margin", "1", "--pairs-inside", "--exact"},
                 dir + "/watch.log", BPCTL);
-  ASSERT_TRUE(status.WaitUntil([](const wire::DaemonStatus& r) { return r.interests() == 1; },
-                               20s))
+  ASSERT_TRUE(status.WaitUntil([](const wire::DaemonStatus& r) { return r.interests() == 1; }, 20s))
       << ReadFile(dir + "/watch.log");
   // Its events flow: every object enters the region.
   const auto deadline = std::chrono::steady_clock::now() + 20s;

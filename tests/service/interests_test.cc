@@ -4,13 +4,12 @@
 // run time; refusals.
 #include "interests.h"
 
-#include "interest_oracle.h"
-
 #include <algorithm>
 #include <map>
 #include <random>
 #include <set>
 
+#include "interest_oracle.h"
 #include <gtest/gtest.h>
 
 #include "bp/box.h"
@@ -53,8 +52,7 @@ class InterestScene {
   using B = Box<K, double>;
   InterestScene(const char* algorithm, uint32_t seed)
       : host_(MakeHost(algorithm, K)),
-        table_(host_.get(), InterestLimits{},
-               [](uint32_t p) { return p == 1 || p == 2; }),
+        table_(host_.get(), InterestLimits{}, [](uint32_t p) { return p == 1 || p == 2; }),
         rng_(seed) {}
 
   B RandomBox(double size) {
@@ -72,9 +70,9 @@ class InterestScene {
     const uint64_t categories[] = {1, 2, 4, 3, 1, 1};
     o.category = categories[rng_() % 6];
     const unsigned m = static_cast<unsigned>(rng_() % 20);
-    if (m == 0) o.mask = 0;                     // pairs with nothing
-    if (m == 1) o.mask = ~kRegionCategory;      // invisible to regions
-    if (m == 2) o.mask = 1 | kRegionCategory;   // pairs with category 1 and regions only
+    if (m == 0) o.mask = 0;                    // pairs with nothing
+    if (m == 1) o.mask = ~kRegionCategory;     // invisible to regions
+    if (m == 2) o.mask = 1 | kRegionCategory;  // pairs with category 1 and regions only
     o.is_static = rng_() % 10 == 0;
     return o;
   }
@@ -125,7 +123,8 @@ class InterestScene {
     }
     for (int i = 0; i < 6; ++i) Insert(&batch, next_local_++);
     ApplyCounts counts;
-    host_->Apply(batch, [](Reject&& r) { ADD_FAILURE() << r.message; }, &counts);
+    host_->Apply(
+        batch, [](Reject&& r) { ADD_FAILURE() << r.message; }, &counts);
   }
 
   wire::Interest RandomInterest(uint64_t id, int kind) {
@@ -216,7 +215,8 @@ class InterestScene {
   void Run(int frames) {
     for (uint32_t kind = 0; kind < 6; ++kind) Churn(1 + kind % 2);  // a world first
     Frame(0);
-    for (int kind = 0; kind < 6; ++kind) Declare(RandomInterest(100 + static_cast<uint64_t>(kind), kind));
+    for (int kind = 0; kind < 6; ++kind)
+      Declare(RandomInterest(100 + static_cast<uint64_t>(kind), kind));
     size_t region_events = 0, object_events = 0;
     for (int f = 1; f <= frames; ++f) {
       Churn(1);
@@ -281,7 +281,8 @@ TEST(Interests, HysteresisKeepsABorderObjectInside) {
   batch.set_dim(2);
   client::AddBox<2>(batch.mutable_inserts(), 1, Box<2, double>{{{9, 0}}, {{10, 1}}});
   ApplyCounts counts;
-  scene.host_->Apply(batch, [](Reject&& r) { ADD_FAILURE() << r.message; }, &counts);
+  scene.host_->Apply(
+      batch, [](Reject&& r) { ADD_FAILURE() << r.message; }, &counts);
   wire::Interest in;
   in.set_id(5);
   in.set_dim(2);
@@ -294,7 +295,8 @@ TEST(Interests, HysteresisKeepsABorderObjectInside) {
     wire::UpdateBatch move = batch;
     move.clear_inserts();
     client::AddBox<2>(move.mutable_updates(), 1, Box<2, double>{{{x, 0}}, {{x + 1, 1}}});
-    scene.host_->Apply(move, [](Reject&& r) { ADD_FAILURE() << r.message; }, &counts);
+    scene.host_->Apply(
+        move, [](Reject&& r) { ADD_FAILURE() << r.message; }, &counts);
     scene.host_->Query(&unc, &col);
     scene.table_.OnFrame(&unc, &col);
     return scene.table_.SetSize(5);

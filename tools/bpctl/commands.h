@@ -60,7 +60,7 @@ struct WatchOptions {
   bool pairs_inside = false;         ///< regions: also the object pairs inside them
   std::vector<std::string> keys;     ///< each "producer:id"
   std::vector<uint32_t> producers;
-  uint64_t category_mask = 0;        ///< pairs with an object of these category bits
+  uint64_t category_mask = 0;  ///< pairs with an object of these category bits
 };
 int Watch(const Common& common, const WatchOptions& options);
 

@@ -79,9 +79,10 @@ int main(int argc, char** argv) {
   watch_cmd->add_option("--key", watch.keys,
                         "an interest: events of pairs involving this object, producer:id "
                         "(repeatable)");
-  watch_cmd->add_option("--producer", watch.producers,
-                        "an interest: events of pairs involving this producer's objects "
-                        "(repeatable)")
+  watch_cmd
+      ->add_option("--producer", watch.producers,
+                   "an interest: events of pairs involving this producer's objects "
+                   "(repeatable)")
       ->check(CLI::Range(1, 65535));
   watch_cmd->add_option("--category", watch.category_mask,
                         "an interest: events of pairs with an object of these category bits "

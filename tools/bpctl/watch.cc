@@ -70,9 +70,8 @@ int Watch(const Common& common, const WatchOptions& options) {
     Status s = client::InterestClient::Create(*connection, &interests);
     if (s.ok()) s = client::StatusSubscriber::Create(*connection, 64, &status);
     if (s.ok()) {
-      s = WaitInterruptibly(common.wait_s, [&](std::chrono::milliseconds t) {
-        return interests->WaitForDaemon(t);
-      });
+      s = WaitInterruptibly(
+          common.wait_s, [&](std::chrono::milliseconds t) { return interests->WaitForDaemon(t); });
     }
     if (s.ok()) s = interests->Declare(interest);
     if (!s.ok()) {
@@ -82,8 +81,8 @@ int Watch(const Common& common, const WatchOptions& options) {
     std::fprintf(stderr,
                  "bpctl watch: interest %016llx: %d region(s), %d key(s), %d producer(s), "
                  "category mask %llx\n",
-                 static_cast<unsigned long long>(interest.id()), interest.region_lo_size() /
-                     std::max(1, static_cast<int>(interest.dim())),
+                 static_cast<unsigned long long>(interest.id()),
+                 interest.region_lo_size() / std::max(1, static_cast<int>(interest.dim())),
                  interest.keys_size(), interest.producers_size(),
                  static_cast<unsigned long long>(interest.category_mask()));
   }

@@ -125,7 +125,7 @@ class Connection {
   Connection() = default;
   ConnectionOptions options_;
   std::unique_ptr<dds::Participant> participant_;
-  std::mutex mutex_;                      // guards topics_
+  std::mutex mutex_;                                // guards topics_
   std::array<dds_entity_t, kTopicCount> topics_{};  // 0 until created
 };
 
