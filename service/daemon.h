@@ -40,6 +40,7 @@
 #include <chrono>
 #include <cstdint>
 #include <cstdio>
+#include <functional>
 #include <map>
 #include <memory>
 #include <string>
@@ -129,6 +130,12 @@ class Daemon {
   // (time_point::max() if none).
   std::chrono::steady_clock::time_point ServeRequests();
   void PublishSnapshot();
+  // Fills event_msg_ with each part of a frame's pairs (uncollides, then collides; at most
+  // limits.max_pairs_per_event_batch pairs per part) and calls finish() to complete and write it.
+  void ForEachEventPart(uint64_t frame, const std::vector<uint64_t>& uncollide,
+                        const std::vector<uint64_t>& collide, const std::function<void()>& finish);
+  // The same for snapshot_pairs_, as snapshot parts of the last frame.
+  void ForEachSnapshotPart(const std::function<void()>& finish);
   // Writes event_msg_ (sequence already set); a failure is counted and logged.
   void WriteEventPart();
   // Takes the interest requests that arrived (declare, drop, spot query) and serves them.
@@ -144,6 +151,9 @@ class Daemon {
   void PublishInterestEvents(uint64_t frame);
   // The interest's set on its stream (snapshot parts).
   void PublishInterestSnapshot(uint64_t id);
+  struct Stream;
+  // Numbers event_msg_ in the interest's stream and writes it; a failure is counted and logged.
+  void WriteStreamPart(uint64_t id, Stream& stream);
   // The whole world's overlapping pairs (the engine's, without the regions').
   uint64_t WorldOverlaps() const;
   void ReportRejection(uint32_t producer, const wire::UpdateBatch* batch, Reject&& reject);

@@ -2,7 +2,6 @@
 // their snapshots, the owners' liveliness, and spot queries.
 #include <algorithm>
 #include <cinttypes>
-#include <random>
 
 #include "daemon.h"
 #include <spdlog/spdlog.h>
@@ -18,13 +17,6 @@ std::string Hex(uint64_t v) {
   char text[17];
   std::snprintf(text, sizeof(text), "%016" PRIx64, v);
   return text;
-}
-
-uint64_t RandomNonzero() {
-  static std::random_device random;
-  uint64_t v = 0;
-  while (v == 0) v = uint64_t{random()} << 32 | random();
-  return v;
 }
 
 }  // namespace
@@ -102,7 +94,7 @@ void Daemon::ServeInterestRequest(std::span<const uint8_t> payload, dds_instance
           RefuseInterest(client, in.id(), "its stream cannot be created: " + st.ToString());
           return;
         }
-        stream->second.epoch = RandomNonzero();
+        stream->second.epoch = transport::RandomId();
         // The stream starts with a snapshot (the set before the interest's first frame: empty),
         // a point to sync from for a subscriber that reads it from the start.
         PublishInterestSnapshot(in.id());
@@ -250,49 +242,14 @@ void Daemon::DropInterest(uint64_t id, const char* why) {
 
 void Daemon::PublishInterestEvents(uint64_t frame) {
   interests_changed_ = false;
-  const size_t per_part = static_cast<size_t>(config_.limits.max_pairs_per_event_batch);
   interests_->ForEachDelta([&](uint64_t id, const InterestTable::Delta& delta) {
     const auto stream = streams_.find(id);
     if (stream == streams_.end()) return;
-    Stream& st = stream->second;
-    const size_t n_unc = delta.uncollide.size() / 2;
-    const size_t pairs = n_unc + delta.collide.size() / 2;
-    const size_t parts = std::max<size_t>(1, (pairs + per_part - 1) / per_part);
-    for (size_t part = 0, next = 0; part < parts; ++part) {
-      event_msg_.Clear();
-      event_msg_.set_version(wire::SCHEMA_VERSION_1);
-      event_msg_.set_frame(frame);
-      event_msg_.set_sequence(++st.seq);
-      event_msg_.set_part(static_cast<uint32_t>(part));
-      event_msg_.set_last_part(part + 1 == parts);
+    ForEachEventPart(frame, delta.uncollide, delta.collide, [&] {
       event_msg_.set_interest(id);
-      const size_t end = std::min(pairs, next + per_part);
-      if (next < n_unc) {
-        event_msg_.mutable_uncollide()->Add(
-            delta.uncollide.begin() + static_cast<std::ptrdiff_t>(2 * next),
-            delta.uncollide.begin() + static_cast<std::ptrdiff_t>(2 * std::min(end, n_unc)));
-      }
-      if (end > n_unc) {
-        const size_t from = std::max(next, n_unc) - n_unc;
-        event_msg_.mutable_collide()->Add(
-            delta.collide.begin() + static_cast<std::ptrdiff_t>(2 * from),
-            delta.collide.begin() + static_cast<std::ptrdiff_t>(2 * (end - n_unc)));
-      }
-      next = end;
-      event_msg_.set_objects(host_->Objects());
       event_msg_.set_overlaps(interests_->SetSize(id));
-      event_msg_.set_epoch(st.epoch);
-      event_msg_.set_published_time_ns(transport::WallClockNs());
-      buffer_.clear();
-      Status s = event_msg_.SerializeToString(&buffer_)
-                     ? st.writer.Write(event_msg_.sequence(), buffer_)
-                     : Status(StatusCode::kResourceExhausted, "the part does not serialise");
-      if (!s.ok()) {
-        ++event_write_failures_;
-        spdlog::error("interest {} frame {} part {}: not delivered ({}); its subscriber sees a gap",
-                      Hex(id), frame, part, s.ToString());
-      }
-    }
+      WriteStreamPart(id, stream->second);
+    });
   });
 }
 
@@ -303,37 +260,30 @@ void Daemon::PublishInterestSnapshot(uint64_t id) {
   st.snapshot_due = false;
   st.last_snapshot = Clock::now();
   interests_->Snapshot(id, &snapshot_pairs_);
-  const size_t pairs = snapshot_pairs_.size();
-  const size_t per_part = static_cast<size_t>(config_.limits.max_pairs_per_event_batch);
-  const size_t parts = std::max<size_t>(1, (pairs + per_part - 1) / per_part);
-  for (size_t part = 0, next = 0; part < parts; ++part) {
-    event_msg_.Clear();
-    event_msg_.set_version(wire::SCHEMA_VERSION_1);
-    event_msg_.set_frame(frames_.load());
-    event_msg_.set_sequence(++st.seq);
-    event_msg_.set_part(static_cast<uint32_t>(part));
-    event_msg_.set_last_part(part + 1 == parts);
-    event_msg_.set_snapshot(true);
+  ForEachSnapshotPart([&] {
     event_msg_.set_interest(id);
-    for (const size_t end = std::min(pairs, next + per_part); next < end; ++next) {
-      event_msg_.add_snapshot_pairs(snapshot_pairs_[next].first);
-      event_msg_.add_snapshot_pairs(snapshot_pairs_[next].second);
-    }
-    event_msg_.set_objects(host_->Objects());
-    event_msg_.set_overlaps(pairs);
-    event_msg_.set_epoch(st.epoch);
-    event_msg_.set_published_time_ns(transport::WallClockNs());
-    buffer_.clear();
-    Status s = event_msg_.SerializeToString(&buffer_)
-                   ? st.writer.Write(event_msg_.sequence(), buffer_)
-                   : Status(StatusCode::kResourceExhausted, "the part does not serialise");
-    if (!s.ok()) {
-      ++event_write_failures_;
-      spdlog::error("interest {} snapshot part {}: not delivered ({})", Hex(id), part,
-                    s.ToString());
-    }
+    event_msg_.set_overlaps(snapshot_pairs_.size());
+    WriteStreamPart(id, st);
+  });
+  spdlog::debug("interest {} snapshot of frame {}: {} pairs", Hex(id), frames_.load(),
+                snapshot_pairs_.size());
+}
+
+void Daemon::WriteStreamPart(uint64_t id, Stream& st) {
+  event_msg_.set_sequence(++st.seq);
+  event_msg_.set_objects(host_->Objects());
+  event_msg_.set_epoch(st.epoch);
+  event_msg_.set_published_time_ns(transport::WallClockNs());
+  buffer_.clear();
+  Status s = event_msg_.SerializeToString(&buffer_)
+                 ? st.writer.Write(event_msg_.sequence(), buffer_)
+                 : Status(StatusCode::kResourceExhausted, "the part does not serialise");
+  if (!s.ok()) {
+    ++event_write_failures_;
+    spdlog::error("interest {} frame {} {}part {}: not delivered ({}); its subscriber sees a gap",
+                  Hex(id), event_msg_.frame(), event_msg_.snapshot() ? "snapshot " : "",
+                  event_msg_.part(), s.ToString());
   }
-  spdlog::debug("interest {} snapshot of frame {}: {} pairs", Hex(id), frames_.load(), pairs);
 }
 
 }  // namespace bp::service

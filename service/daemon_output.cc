@@ -29,41 +29,16 @@ void Daemon::RunFrame(uint32_t source_producer, uint64_t source_frame, uint64_t 
   interests_->OnFrame(&uncollide_, &collide_);  // the regions' pairs out, each interest's events
   const auto queried = Clock::now();
   const uint64_t frame = frames_.load() + 1;
-  // Pairs of the frame: uncollides then collides, split into parts of at most max pairs.
   const size_t pairs = (uncollide_.size() + collide_.size()) / 2;
-  const size_t per_part = static_cast<size_t>(config_.limits.max_pairs_per_event_batch);
-  const size_t parts = std::max<size_t>(1, (pairs + per_part - 1) / per_part);
-  size_t next = 0;  // pair index over the concatenation
-  for (size_t part = 0; part < parts; ++part) {
-    event_msg_.Clear();
-    event_msg_.set_version(wire::SCHEMA_VERSION_1);
-    event_msg_.set_frame(frame);
+  ForEachEventPart(frame, uncollide_, collide_, [&] {
     event_msg_.set_sequence(++event_seq_);
-    event_msg_.set_part(static_cast<uint32_t>(part));
-    event_msg_.set_last_part(part + 1 == parts);
-    const size_t end = std::min(pairs, next + per_part);
-    const size_t n_unc = uncollide_.size() / 2;
-    // The part's pairs [next, end): a run of uncollides, then a run of collides, copied whole.
-    if (next < n_unc) {
-      const size_t to = std::min(end, n_unc);
-      event_msg_.mutable_uncollide()->Add(
-          uncollide_.begin() + static_cast<std::ptrdiff_t>(2 * next),
-          uncollide_.begin() + static_cast<std::ptrdiff_t>(2 * to));
-    }
-    if (end > n_unc) {
-      const size_t from = std::max(next, n_unc) - n_unc;
-      const size_t to = end - n_unc;
-      event_msg_.mutable_collide()->Add(collide_.begin() + static_cast<std::ptrdiff_t>(2 * from),
-                                        collide_.begin() + static_cast<std::ptrdiff_t>(2 * to));
-    }
-    next = end;
     event_msg_.set_source_producer(source_producer);
     event_msg_.set_source_frame(source_frame);
     event_msg_.set_source_sent_time_ns(source_sent_ns);
     event_msg_.set_objects(host_->Objects());
     event_msg_.set_overlaps(WorldOverlaps());
     WriteEventPart();
-  }
+  });
   PublishInterestEvents(frame);
   frames_.store(frame);
   frame_dirty_ = false;
@@ -114,6 +89,57 @@ void Daemon::LogFrame(uint64_t frame, int64_t wall_ns, uint32_t source_producer,
     return;
   }
   if (flush) frame_log_flushed_ = now;
+}
+
+void Daemon::ForEachEventPart(uint64_t frame, const std::vector<uint64_t>& uncollide,
+                              const std::vector<uint64_t>& collide,
+                              const std::function<void()>& finish) {
+  const size_t n_unc = uncollide.size() / 2;
+  const size_t pairs = n_unc + collide.size() / 2;
+  const size_t per_part = static_cast<size_t>(config_.limits.max_pairs_per_event_batch);
+  const size_t parts = std::max<size_t>(1, (pairs + per_part - 1) / per_part);
+  for (size_t part = 0, next = 0; part < parts; ++part) {
+    event_msg_.Clear();
+    event_msg_.set_version(wire::SCHEMA_VERSION_1);
+    event_msg_.set_frame(frame);
+    event_msg_.set_part(static_cast<uint32_t>(part));
+    event_msg_.set_last_part(part + 1 == parts);
+    // The part's pairs [next, end) over the concatenation: a run of uncollides, then a run of
+    // collides, copied whole.
+    const size_t end = std::min(pairs, next + per_part);
+    if (next < n_unc) {
+      event_msg_.mutable_uncollide()->Add(
+          uncollide.begin() + static_cast<std::ptrdiff_t>(2 * next),
+          uncollide.begin() + static_cast<std::ptrdiff_t>(2 * std::min(end, n_unc)));
+    }
+    if (end > n_unc) {
+      const size_t from = std::max(next, n_unc) - n_unc;
+      event_msg_.mutable_collide()->Add(
+          collide.begin() + static_cast<std::ptrdiff_t>(2 * from),
+          collide.begin() + static_cast<std::ptrdiff_t>(2 * (end - n_unc)));
+    }
+    next = end;
+    finish();
+  }
+}
+
+void Daemon::ForEachSnapshotPart(const std::function<void()>& finish) {
+  const size_t pairs = snapshot_pairs_.size();
+  const size_t per_part = static_cast<size_t>(config_.limits.max_pairs_per_event_batch);
+  const size_t parts = std::max<size_t>(1, (pairs + per_part - 1) / per_part);
+  for (size_t part = 0, next = 0; part < parts; ++part) {
+    event_msg_.Clear();
+    event_msg_.set_version(wire::SCHEMA_VERSION_1);
+    event_msg_.set_frame(frames_.load());
+    event_msg_.set_part(static_cast<uint32_t>(part));
+    event_msg_.set_last_part(part + 1 == parts);
+    event_msg_.set_snapshot(true);
+    for (const size_t end = std::min(pairs, next + per_part); next < end; ++next) {
+      event_msg_.add_snapshot_pairs(snapshot_pairs_[next].first);
+      event_msg_.add_snapshot_pairs(snapshot_pairs_[next].second);
+    }
+    finish();
+  }
 }
 
 void Daemon::WriteEventPart() {
@@ -192,25 +218,15 @@ void Daemon::PublishSnapshot() {
                         std::find_if(snapshot_pairs_.begin(), snapshot_pairs_.end(),
                                      [](const auto& p) { return p.first >= kLocalIdLimit; }));
   snapshots_published_.fetch_add(1);  // before its parts: a reader that saw them sees the count
-  const size_t pairs = snapshot_pairs_.size();
-  const size_t per_part = static_cast<size_t>(config_.limits.max_pairs_per_event_batch);
-  const size_t parts = std::max<size_t>(1, (pairs + per_part - 1) / per_part);
-  for (size_t part = 0, next = 0; part < parts; ++part) {
-    event_msg_.Clear();
-    event_msg_.set_version(wire::SCHEMA_VERSION_1);
-    event_msg_.set_frame(frames_.load());
+  size_t parts = 0;
+  ForEachSnapshotPart([&] {
     event_msg_.set_sequence(++event_seq_);
-    event_msg_.set_part(static_cast<uint32_t>(part));
-    event_msg_.set_last_part(part + 1 == parts);
-    event_msg_.set_snapshot(true);
-    for (const size_t end = std::min(pairs, next + per_part); next < end; ++next) {
-      event_msg_.add_snapshot_pairs(snapshot_pairs_[next].first);
-      event_msg_.add_snapshot_pairs(snapshot_pairs_[next].second);
-    }
     event_msg_.set_objects(host_->Objects());
     event_msg_.set_overlaps(WorldOverlaps());
     WriteEventPart();
-  }
+    ++parts;
+  });
+  const size_t pairs = snapshot_pairs_.size();
   spdlog::info("snapshot of frame {}: {} pairs in {} part(s)", frames_.load(), pairs, parts);
 }
 

@@ -1,24 +1,11 @@
 #include "bp/client/interests.h"
 
-#include <random>
-
 namespace bp::client {
-namespace {
-
-uint64_t RandomNonzero() {
-  static std::random_device random;
-  uint64_t v = 0;
-  while (v == 0) v = uint64_t{random()} << 32 | random();
-  return v;
-}
-
-}  // namespace
-
-uint64_t InterestClient::NewInterestId() { return RandomNonzero(); }
+uint64_t InterestClient::NewInterestId() { return transport::RandomId(); }
 
 Status InterestClient::Create(Connection& connection, std::unique_ptr<InterestClient>* out) {
   std::unique_ptr<InterestClient> c(new InterestClient());
-  c->client_ = RandomNonzero();
+  c->client_ = transport::RandomId();
   dds::Qos wqos;
   qos::InterestsWriter(wqos.get(), std::chrono::milliseconds(1000));
   if (Status s = connection.CreateWriter(TopicId::kInterests, wqos, &c->writer_); !s.ok()) {

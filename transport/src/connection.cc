@@ -4,6 +4,8 @@
 #include <cstdio>
 #include <fstream>
 #include <iterator>
+#include <mutex>
+#include <random>
 #include <sstream>
 
 namespace bp::transport {
@@ -28,6 +30,15 @@ std::string Suffixed(const std::string& partition, const char* kind, uint64_t id
   return (partition.empty() ? std::string() : partition + ".") + kind + "." + hex;
 }
 }  // namespace
+
+uint64_t RandomId() {
+  static std::mutex mutex;
+  static std::random_device random;
+  std::lock_guard lock(mutex);
+  uint64_t v = 0;
+  while (v == 0) v = uint64_t{random()} << 32 | random();
+  return v;
+}
 
 std::string InterestPartition(const std::string& partition, uint64_t interest) {
   return Suffixed(partition, "interest", interest);

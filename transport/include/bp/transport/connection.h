@@ -46,6 +46,9 @@ struct TopicNames {
   std::string replies = "bp_replies";
 };
 
+/// A random nonzero 64-bit id (a client's, an interest's, a stream's epoch).
+uint64_t RandomId();
+
 /// The partition of interest `interest`'s events: "<partition>.interest.<16 hex digits>"
 /// ("interest.<hex>" in the default partition).
 std::string InterestPartition(const std::string& partition, uint64_t interest);
