@@ -1,7 +1,8 @@
 // The daemon's interests over real DDS: each kind of interest on its own stream against the
 // oracle filtered the same way, frame by frame, with a region moved and an interest dropped at
-// run time; the whole-world stream unchanged; bad interests refused on the status topic; spot
-// queries equal to the oracle's answer.
+// run time; a late joiner of a stream synced from its snapshot; the whole-world stream
+// unchanged; bad interests refused on the status topic; spot queries equal to the oracle's
+// answer.
 #include <algorithm>
 #include <random>
 #include <set>
@@ -209,6 +210,15 @@ TEST(DaemonInterests, EachKindOnItsOwnStreamMatchesTheOracle) {
     }
   }
   EXPECT_GT(region_pairs_seen, 20u);
+  // A late joiner of an interest's stream syncs from that interest's snapshot.
+  Follower late;
+  late.id = declared[0].id();
+  BP_ASSERT_OK(client::EventSubscriber::Create(*client.connection, 1000, &late.sub, late.id));
+  Settle(late, *requests);
+  if (HasFatalFailure()) return;
+  const auto late_pairs = late.view.SortedPairs();
+  EXPECT_EQ(std::set<InterestOracle<3>::Pair>(late_pairs.begin(), late_pairs.end()),
+            oracle.interests.at(late.id).set);
   for (const auto& in : declared) {
     if (!oracle.interests.count(in.id())) continue;
     EXPECT_FALSE(oracle.interests.at(in.id()).set.empty()) << "interest " << in.id() << " is empty";
