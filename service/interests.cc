@@ -43,12 +43,13 @@ struct InterestTable::State {
     uint64_t enter_key = 0;  // the region's engine object
     uint64_t leave_key = 0;  // the grown region's (== enter_key without a leave margin)
     bool gone = false;       // retired; dropped at the end of the next frame
-    std::unordered_set<uint64_t> members;
+    detail::FlatSet<uint64_t> members;
     // Members when the region's objects were replaced (a new shape): they stay inside if they
     // overlap the new grown region at the next frame, as they would have by moving in place.
-    std::unordered_set<uint64_t> carry;
-    // Objects whose membership changed since the last frame, and whether each was a member then.
-    std::unordered_map<uint64_t, bool> changed;
+    detail::FlatSet<uint64_t> carry;
+    // Membership changes since the last frame: (object, a member before the change); an
+    // object's first record says whether it was a member at the last frame.
+    std::vector<std::pair<uint64_t, bool>> changed;
   };
   uint64_t id = 0;
   uint64_t owner = 0;
@@ -57,9 +58,11 @@ struct InterestTable::State {
   std::unordered_set<uint64_t> keys;
   std::vector<uint32_t> producers;  // sorted, unique
   uint64_t category_mask = 0;
-  std::unordered_map<uint64_t, uint32_t> inside;  // object -> regions it is inside (> 0)
-  std::vector<uint64_t> inside_changed;           // objects whose inside count crossed 0
-  PairSet pairs;                                  // the object pairs of the set
+  // With pairs_inside only: object -> regions of the interest it is inside (> 0), and the
+  // objects whose count crossed 0 in the frame.
+  std::unordered_map<uint64_t, uint32_t> inside;
+  std::vector<uint64_t> inside_changed;
+  PairSet pairs;  // the object pairs of the set
   Delta delta;
   bool dirty = true;  // declared or changed: the next frame recomputes its pairs whole
   uint64_t stamp = 0;
@@ -155,7 +158,6 @@ Status InterestTable::Validate(const wire::Interest& in, uint64_t owner) const {
 
 Status InterestTable::Declare(const wire::Interest& in, uint64_t owner) {
   if (Status s = Validate(in, owner); !s.ok()) return s;
-  if (!adjacency_built_) BuildAdjacency();
   auto& slot = by_id_[in.id()];
   const bool fresh = !slot;
   if (fresh) {
@@ -171,6 +173,15 @@ Status InterestTable::Declare(const wire::Interest& in, uint64_t owner) {
     if (fresh) (void)Drop(in.id(), owner);
     return Status(st.code(), Name(in.id()) + ": " + st.message());
   }
+  if (in.pairs_inside() != s.pairs_inside) {
+    // The inside counts are kept only for pairs_inside: built from the members, or dropped.
+    s.inside.clear();
+    if (in.pairs_inside()) {
+      for (const auto& region : s.regions) {
+        region.members.ForEach([&](uint64_t o) { ++s.inside[o]; });
+      }
+    }
+  }
   s.pairs_inside = in.pairs_inside();
   s.keys = std::unordered_set<uint64_t>(in.keys().begin(), in.keys().end());
   s.producers.assign(in.producers().begin(), in.producers().end());
@@ -179,6 +190,7 @@ Status InterestTable::Declare(const wire::Interest& in, uint64_t owner) {
   s.category_mask = in.category_mask();
   s.dirty = true;
   Watch(s);
+  if (!adjacency_built_ && NeedsAdjacency(s)) BuildAdjacency();
   return Status::Ok();
 }
 
@@ -238,13 +250,14 @@ void InterestTable::EraseRegions(State& s, size_t r) {
   for (uint64_t key : {region.enter_key, region.leave_key}) {
     if (region_refs_.erase(key) != 0) host_->EraseRegion(key);
   }
-  for (uint64_t o : region.members) {
-    region.changed.try_emplace(o, true);
-    region.carry.insert(o);
+  region.members.ForEach([&](uint64_t o) {
+    region.changed.emplace_back(o, true);
+    region.carry.Insert(o);
+    if (!s.pairs_inside) return;
     auto in = s.inside.find(o);
     if (in != s.inside.end() && --in->second == 0) s.inside.erase(in);
-  }
-  region.members.clear();
+  });
+  region.members.Clear();
   region.gone = true;
 }
 
@@ -363,6 +376,10 @@ void InterestTable::Candidates(uint64_t a, uint64_t b) {
   add(category_interests_);
 }
 
+bool InterestTable::NeedsAdjacency(const State& s) {
+  return s.pairs_inside || !s.keys.empty() || !s.producers.empty() || s.category_mask != 0;
+}
+
 void InterestTable::BuildAdjacency() {
   adjacency_.clear();
   std::vector<std::pair<uint64_t, uint64_t>> pairs;
@@ -436,9 +453,15 @@ void InterestTable::OnFrame(Flat* uncollide, Flat* collide) {
     s->delta.uncollide.clear();
     s->delta.collide.clear();
   }
-  if (by_id_.empty() && adjacency_built_) {
+  // The world's pairs by object, while an interest needs them (see NeedsAdjacency). Built
+  // here, they already reflect this frame's events.
+  const bool need_adjacency = std::any_of(by_id_.begin(), by_id_.end(),
+                                          [](const auto& e) { return NeedsAdjacency(*e.second); });
+  bool link = adjacency_built_;
+  if (adjacency_built_ && !need_adjacency) {
     adjacency_.clear();
     adjacency_built_ = false;
+    link = false;
   }
   if (region_refs_.empty() && region_pairs_ == 0 && by_id_.empty()) return;
 
@@ -454,13 +477,14 @@ void InterestTable::OnFrame(Flat* uncollide, Flat* collide) {
     State& s = *ref->second.state;
     const uint64_t o = (*uncollide)[2 * i + 1];
     State::Region& region = s.regions[ref->second.region];
-    if (region.members.erase(o) == 0) continue;
-    region.changed.try_emplace(o, true);
+    if (!region.members.Erase(o)) continue;
+    region.changed.emplace_back(o, true);
+    if (!s.pairs_inside) continue;
     auto in = s.inside.find(o);
     if (--in->second == 0) {
       s.inside.erase(in);
       s.inside_changed.push_back(o);
-      if (s.pairs_inside) left_inside.emplace_back(&s, o);
+      left_inside.emplace_back(&s, o);
     }
   }
   for (size_t i = 0; i < region_col; ++i) {
@@ -469,12 +493,12 @@ void InterestTable::OnFrame(Flat* uncollide, Flat* collide) {
     State& s = *ref->second.state;
     const uint64_t o = (*collide)[2 * i + 1];
     State::Region& region = s.regions[ref->second.region];
-    if (!ref->second.enter && region.carry.count(o) == 0) continue;
-    if (!region.members.insert(o).second) continue;
-    region.changed.try_emplace(o, false);
-    if (++s.inside[o] == 1) {
+    if (!ref->second.enter && !region.carry.Contains(o)) continue;
+    if (!region.members.Insert(o)) continue;
+    region.changed.emplace_back(o, false);
+    if (s.pairs_inside && ++s.inside[o] == 1) {
       s.inside_changed.push_back(o);
-      if (s.pairs_inside) AddWatch(o, &s);
+      AddWatch(o, &s);
     }
   }
   uncollide->erase(uncollide->begin(),
@@ -482,7 +506,8 @@ void InterestTable::OnFrame(Flat* uncollide, Flat* collide) {
   collide->erase(collide->begin(), collide->begin() + static_cast<std::ptrdiff_t>(2 * region_col));
 
   // 2. The object pairs.
-  if (adjacency_built_) {
+  if (need_adjacency && !adjacency_built_) BuildAdjacency();
+  if (link) {
     for (size_t i = 0; i < uncollide->size(); i += 2) Unlink((*uncollide)[i], (*uncollide)[i + 1]);
     for (size_t i = 0; i < collide->size(); i += 2) Link((*collide)[i], (*collide)[i + 1]);
   }
@@ -530,15 +555,20 @@ void InterestTable::OnFrame(Flat* uncollide, Flat* collide) {
     if (s->dirty) Recompute(*s);
     for (size_t r = 0; r < s->regions.size(); ++r) {
       State::Region& region = s->regions[r];
-      for (const auto& [o, was] : region.changed) {
-        const bool now = region.members.count(o) != 0;
+      // Each object once, with its first record (its membership at the last frame).
+      std::stable_sort(region.changed.begin(), region.changed.end(),
+                       [](const auto& x, const auto& y) { return x.first < y.first; });
+      for (size_t i = 0; i < region.changed.size(); ++i) {
+        const auto [o, was] = region.changed[i];
+        if (i > 0 && region.changed[i - 1].first == o) continue;
+        const bool now = region.members.Contains(o);
         if (was == now) continue;
         Flat& out = now ? s->delta.collide : s->delta.uncollide;
         out.push_back(r);
         out.push_back(o);
       }
       region.changed.clear();
-      region.carry.clear();
+      region.carry.Clear();
     }
     while (!s->regions.empty() && s->regions.back().gone) s->regions.pop_back();
     SortFlat(&s->delta.uncollide);
@@ -560,7 +590,7 @@ bool InterestTable::Snapshot(uint64_t id, std::vector<std::pair<uint64_t, uint64
   if (it == by_id_.end()) return false;
   const State& s = *it->second;
   for (size_t r = 0; r < s.regions.size(); ++r) {
-    for (uint64_t o : s.regions[r].members) out->emplace_back(r, o);
+    s.regions[r].members.ForEach([&](uint64_t o) { out->emplace_back(r, o); });
   }
   out->insert(out->end(), s.pairs.begin(), s.pairs.end());
   std::sort(out->begin(), out->end());

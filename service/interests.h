@@ -11,7 +11,8 @@
 // categories) are the whole world's pairs that satisfy its predicate; the table keeps each
 // interest's set, finds the interests a world event may concern through watch lists (keys,
 // producers, category interests), and re-evaluates the partners of an object whose membership
-// or category changed through the current pairs' adjacency (kept while any interest exists).
+// or category changed through the current pairs' adjacency (kept while an interest with object
+// criteria exists).
 // Every change is applied to the interest's set and emitted only if it changes the set, so a
 // frame's events are exactly the difference between the set before and after it.
 //
@@ -37,6 +38,7 @@
 #include "broadphase.pb.h"
 #include "engine_host.h"
 
+#include "bp/detail/flat_set.h"
 #include "bp/status.h"
 
 namespace bp::service {
@@ -127,6 +129,9 @@ class InterestTable {
   void Reevaluate(State& s, uint64_t a, uint64_t b);
   // The interests a world pair may concern (deduplicated, in candidates_).
   void Candidates(uint64_t a, uint64_t b);
+  // An interest with object criteria needs the world's pairs by object (to re-evaluate the
+  // partners of an object that entered or left, and to compute a declaration whole).
+  static bool NeedsAdjacency(const State& s);
   void BuildAdjacency();
   void Link(uint64_t a, uint64_t b);
   void Unlink(uint64_t a, uint64_t b);
@@ -144,7 +149,7 @@ class InterestTable {
   std::unordered_map<uint64_t, std::vector<State*>> watch_keys_;
   std::unordered_map<uint32_t, std::vector<State*>> watch_producers_;
   std::vector<State*> category_interests_;
-  // The current object pairs, by object, while any interest exists.
+  // The current object pairs, by object, while an interest needs them (NeedsAdjacency).
   bool adjacency_built_ = false;
   std::unordered_map<uint64_t, std::vector<uint64_t>> adjacency_;
   std::vector<State*> candidates_;
