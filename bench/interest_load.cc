@@ -19,9 +19,8 @@
 #include <unordered_set>
 #include <vector>
 
-#include <CLI/CLI.hpp>
-
 #include "config.h"
+#include <CLI/CLI.hpp>
 
 #include "bp/client/interests.h"
 #include "bp/client/overlap_view.h"
@@ -69,9 +68,11 @@ int main(int argc, char** argv) {
       ->check(CLI::Range(0, 100000));
   app.add_option("--fraction", fraction, "each region's share of the world's volume")
       ->check(CLI::Range(1e-9, 1.0));
-  app.add_option("--leave-margin", margin, "each region's leave margin")->check(CLI::NonNegativeNumber);
+  app.add_option("--leave-margin", margin, "each region's leave margin")
+      ->check(CLI::NonNegativeNumber);
   app.add_option("--seconds", seconds, "measured seconds")->check(CLI::PositiveNumber);
-  app.add_option("--warmup", warmup, "seconds before the measurement")->check(CLI::NonNegativeNumber);
+  app.add_option("--warmup", warmup, "seconds before the measurement")
+      ->check(CLI::NonNegativeNumber);
   app.add_option("--seed", seed, "region placement");
   CLI11_PARSE(app, argc, argv);
 
@@ -111,8 +112,8 @@ int main(int argc, char** argv) {
                        bp::client::InterestClient::Create(*connection, &interests)}) {
     if (!s.ok()) return Fail(s.ToString());
   }
-  for (bp::Status s : {world->WaitForDaemon(20s), requests->WaitForDaemon(20s),
-                       interests->WaitForDaemon(20s)}) {
+  for (bp::Status s :
+       {world->WaitForDaemon(20s), requests->WaitForDaemon(20s), interests->WaitForDaemon(20s)}) {
     if (!s.ok()) return Fail("no daemon: " + s.ToString());
   }
 
@@ -138,8 +139,8 @@ int main(int argc, char** argv) {
 
   // The loop: every stream polled in turn. The counters restart after the warm-up.
   const auto start = Clock::now();
-  const auto measure_from = start + std::chrono::duration_cast<Clock::duration>(
-                                        std::chrono::duration<double>(warmup));
+  const auto measure_from =
+      start + std::chrono::duration_cast<Clock::duration>(std::chrono::duration<double>(warmup));
   const auto until = measure_from + std::chrono::duration_cast<Clock::duration>(
                                         std::chrono::duration<double>(seconds));
   bool measuring = false;
@@ -182,7 +183,7 @@ int main(int argc, char** argv) {
         for (const auto* list : {&p.collide(), &p.uncollide()}) {
           for (int i = 0; i < list->size(); ++i) kept += followers[0].members.count((*list)[i]);
         }
-        filter_sink += kept;
+        filter_sink = filter_sink + kept;
       }
     }
     filter_cpu += ThreadCpuSeconds() - t1;
@@ -205,7 +206,8 @@ int main(int argc, char** argv) {
           }
         } else {
           for (int i = 0; i + 1 < p.snapshot_pairs_size(); i += 2) {
-            if (p.snapshot_pairs(i) < (uint64_t{1} << 48)) f.members.insert(p.snapshot_pairs(i + 1));
+            if (p.snapshot_pairs(i) < (uint64_t{1} << 48))
+              f.members.insert(p.snapshot_pairs(i + 1));
           }
         }
         if (f.view.Apply(p)) f.asked = {};
@@ -236,6 +238,8 @@ int main(int argc, char** argv) {
     if (!any) std::this_thread::sleep_for(1ms);
   }
   for (const Follower& f : followers) (void)interests->Drop(f.id);
+  if (frame_p50.empty())
+    return Fail("no status report with statistics from the daemon while measuring");
 
   std::vector<double> bytes_per_s;
   uint64_t gaps = 0, mismatches = 0, synced = 0, checked = 0;
@@ -245,11 +249,12 @@ int main(int argc, char** argv) {
     gaps += f.sub->gaps() - interest_gaps0[i];
     mismatches += f.mismatches;
     checked += f.checked;
-    synced += f.view.synced() ? 1 : 0;
+    if (f.view.synced()) ++synced;
   }
   const double world_bps = static_cast<double>(world_bytes) / seconds;
   const double median_bps = bp::util::Percentile(bytes_per_s, 0.5);
-  const double max_bps = bytes_per_s.empty() ? 0 : *std::max_element(bytes_per_s.begin(), bytes_per_s.end());
+  const double max_bps =
+      bytes_per_s.empty() ? 0 : *std::max_element(bytes_per_s.begin(), bytes_per_s.end());
   const double n = std::max<double>(1, static_cast<double>(followers.size()));
   (void)filter_sink;
   std::printf(
@@ -272,7 +277,6 @@ int main(int argc, char** argv) {
       static_cast<unsigned long long>(world->gaps() - world_gaps0),
       static_cast<unsigned long long>(gaps), static_cast<unsigned long long>(synced),
       static_cast<unsigned long long>(checked), static_cast<unsigned long long>(mismatches),
-      interest_cpu / n / seconds * 1000.0,
-      (world_cpu + filter_cpu) / seconds * 1000.0);
+      interest_cpu / n / seconds * 1000.0, (world_cpu + filter_cpu) / seconds * 1000.0);
   return mismatches == 0 ? 0 : 1;
 }

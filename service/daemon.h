@@ -148,7 +148,8 @@ class Daemon {
   std::chrono::steady_clock::time_point CheckInterestOwners();
   void DropInterest(uint64_t id, const char* why);
   // After a frame: each interest's events on its stream.
-  void PublishInterestEvents(uint64_t frame);
+  void PublishInterestEvents(uint64_t frame, uint32_t source_producer, uint64_t source_frame,
+                             uint64_t source_sent_ns);
   // The interest's set on its stream (snapshot parts).
   void PublishInterestSnapshot(uint64_t id);
   struct Stream;

@@ -85,6 +85,10 @@ void Daemon::ServeInterestRequest(std::span<const uint8_t> payload, dds_instance
                                      std::chrono::milliseconds(config_.dds.write_timeout_ms));
         // A subscriber whose reader matches the new writer late still receives the recent parts.
         dds_qset_durability(qos.get(), DDS_DURABILITY_TRANSIENT_LOCAL);
+        // Sent by Cyclone's send thread, off this loop (dds.interest_latency_budget_ms).
+        if (config_.dds.interest_latency_budget_ms > 0) {
+          dds_qset_latency_budget(qos.get(), DDS_MSECS(config_.dds.interest_latency_budget_ms));
+        }
         const std::string partition = transport::InterestPartition(config_.dds.partition, in.id());
         if (Status st = connection_->CreateWriter(transport::TopicId::kEvents, qos,
                                                   &stream->second.writer, &partition);
@@ -240,7 +244,8 @@ void Daemon::DropInterest(uint64_t id, const char* why) {
   }
 }
 
-void Daemon::PublishInterestEvents(uint64_t frame) {
+void Daemon::PublishInterestEvents(uint64_t frame, uint32_t source_producer, uint64_t source_frame,
+                                   uint64_t source_sent_ns) {
   interests_changed_ = false;
   interests_->ForEachDelta([&](uint64_t id, const InterestTable::Delta& delta) {
     const auto stream = streams_.find(id);
@@ -248,6 +253,9 @@ void Daemon::PublishInterestEvents(uint64_t frame) {
     ForEachEventPart(frame, delta.uncollide, delta.collide, [&] {
       event_msg_.set_interest(id);
       event_msg_.set_overlaps(interests_->SetSize(id));
+      event_msg_.set_source_producer(source_producer);
+      event_msg_.set_source_frame(source_frame);
+      event_msg_.set_source_sent_time_ns(source_sent_ns);
       WriteStreamPart(id, stream->second);
     });
   });

@@ -39,7 +39,7 @@ void Daemon::RunFrame(uint32_t source_producer, uint64_t source_frame, uint64_t 
     event_msg_.set_overlaps(WorldOverlaps());
     WriteEventPart();
   });
-  PublishInterestEvents(frame);
+  PublishInterestEvents(frame, source_producer, source_frame, source_sent_ns);
   frames_.store(frame);
   frame_dirty_ = false;
   ++interval_frames_;
