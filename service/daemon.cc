@@ -102,7 +102,7 @@ Status Daemon::Create(const Config& config, std::unique_ptr<Daemon>* out) {
   d->interests_ = std::make_unique<InterestTable>(
       d->host_.get(),
       InterestLimits{config.limits.max_interests, config.limits.max_interest_regions,
-                     config.limits.max_interest_keys},
+                     config.limits.max_interest_keys, config.engine.margin > 0},
       [daemon = d.get()](uint32_t producer) { return daemon->claims_.count(producer) != 0; });
   if (const std::string& path = config.logging.frame_log; !path.empty()) {
     d->frame_log_.reset(std::fopen(path.c_str(), "w"));

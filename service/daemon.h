@@ -146,12 +146,15 @@ class Daemon {
   // Drops the interests (and reply writers) of writers not alive for producers.lease_s; returns
   // when the next one is due (time_point::max() if none).
   std::chrono::steady_clock::time_point CheckInterestOwners();
-  void DropInterest(uint64_t id, const char* why);
   // After a frame: each interest's events on its stream.
   void PublishInterestEvents(uint64_t frame, uint32_t source_producer, uint64_t source_frame,
                              uint64_t source_sent_ns);
   // The interest's set on its stream (snapshot parts).
   void PublishInterestSnapshot(uint64_t id);
+  // Publishes the interest snapshots asked for whose interval has passed and whose interest's
+  // last change has been applied by a frame; returns when a deferred one is due
+  // (time_point::max() if none waits for time).
+  std::chrono::steady_clock::time_point ServeInterestSnapshots();
   struct Stream;
   // Numbers event_msg_ in the interest's stream and writes it; a failure is counted and logged.
   void WriteStreamPart(uint64_t id, Stream& stream);
@@ -269,6 +272,7 @@ class Daemon {
   std::vector<dds::WriterLiveliness::Change> interest_liveliness_changes_;
   bool interests_changed_ = false;  // a declaration or drop waits for a frame
   std::vector<wire::InterestRefusal> pending_refusals_;
+  std::vector<uint64_t> dropped_now_;  // interests dropped by the lease, for the next report
   wire::InterestRequest interest_request_;
   wire::SpotAnswer answer_;
   std::vector<uint64_t> spot_keys_;

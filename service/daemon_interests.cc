@@ -64,16 +64,16 @@ void Daemon::ServeInterestRequest(std::span<const uint8_t> payload, dds_instance
   switch (req.request_case()) {
     case wire::InterestRequest::kDeclare: {
       const wire::Interest& in = req.declare();
-      // A writer that is not alive (or gone) loses its interest to a new one that declares it.
+      // A writer that is not alive (or gone) loses its interest to a new one that declares it
+      // (validly: a refused declaration leaves it where it is).
       const uint64_t holder = interests_->Owner(in.id());
+      bool take_over = false;
       if (holder != 0 && holder != writer) {
         const auto matched = interest_requests_.MatchedWriterHandles();
-        if (interest_down_since_.contains(holder) ||
-            std::find(matched.begin(), matched.end(), holder) == matched.end()) {
-          DropInterest(in.id(), "its writer is not alive and a new writer declares it");
-        }
+        take_over = interest_down_since_.contains(holder) ||
+                    std::find(matched.begin(), matched.end(), holder) == matched.end();
       }
-      if (Status st = interests_->Declare(in, writer); !st.ok()) {
+      if (Status st = interests_->Declare(in, writer, take_over); !st.ok()) {
         RefuseInterest(client, in.id(), st.message());
         return;
       }
@@ -139,6 +139,15 @@ void Daemon::RefuseInterest(uint64_t client, uint64_t interest, std::string why)
 
 void Daemon::AnswerSpotQuery(uint64_t client, dds_instance_handle_t writer,
                              const wire::SpotQuery& query) {
+  if (!reply_writers_.contains(client) &&
+      reply_writers_.size() >= std::max<uint64_t>(config_.limits.max_interests, 1)) {
+    RefuseInterest(client, 0,
+                   "spot query " + std::to_string(query.query()) + ": " +
+                       std::to_string(reply_writers_.size()) +
+                       " clients already have a reply writer (limits.max_interests); they are "
+                       "freed when their clients go away");
+    return;
+  }
   auto [reply, fresh] = reply_writers_.try_emplace(client);
   if (fresh) {
     dds::Qos qos;
@@ -211,7 +220,11 @@ std::chrono::steady_clock::time_point Daemon::CheckInterestOwners() {
     }
   }
   auto next = Clock::time_point::max();
-  if (interest_down_since_.empty() || config_.producers.lease_s <= 0) return next;
+  if (config_.producers.lease_s <= 0) {  // no lease: interests stay until dropped
+    interest_down_since_.clear();
+    return next;
+  }
+  if (interest_down_since_.empty()) return next;
   const auto lease = std::chrono::duration_cast<Clock::duration>(
       std::chrono::duration<double>(config_.producers.lease_s));
   for (auto it = interest_down_since_.begin(); it != interest_down_since_.end();) {
@@ -225,6 +238,7 @@ std::chrono::steady_clock::time_point Daemon::CheckInterestOwners() {
     const std::vector<uint64_t> dropped = interests_->DropOwner(writer);
     for (uint64_t id : dropped) {
       streams_.erase(id);
+      dropped_now_.push_back(id);
       spdlog::info("interest {} dropped: its writer has not been alive for producers.lease_s",
                    Hex(id));
     }
@@ -233,15 +247,11 @@ std::chrono::steady_clock::time_point Daemon::CheckInterestOwners() {
     it = interest_down_since_.erase(it);
   }
   interests_count_.store(interests_->size());
-  return next;
-}
-
-void Daemon::DropInterest(uint64_t id, const char* why) {
-  if (interests_->Drop(id, interests_->Owner(id)).ok()) {
-    streams_.erase(id);
-    interests_changed_ = true;
-    spdlog::info("interest {} dropped: {}", Hex(id), why);
+  if (!dropped_now_.empty()) {  // the report tells a client that is in fact alive
+    PublishStatus(wire::SERVING, false);
+    dropped_now_.clear();
   }
+  return next;
 }
 
 void Daemon::PublishInterestEvents(uint64_t frame, uint32_t source_producer, uint64_t source_frame,
@@ -259,6 +269,23 @@ void Daemon::PublishInterestEvents(uint64_t frame, uint32_t source_producer, uin
       WriteStreamPart(id, stream->second);
     });
   });
+  if (!stop_.load()) (void)ServeInterestSnapshots();  // those that waited for this frame
+}
+
+std::chrono::steady_clock::time_point Daemon::ServeInterestSnapshots() {
+  const auto interval = std::chrono::milliseconds(config_.limits.snapshot_interval_ms);
+  const auto now = Clock::now();
+  auto next = Clock::time_point::max();
+  for (auto& [id, stream] : streams_) {
+    // A changed interest's set is the last frame's only after the next frame: served then.
+    if (!stream.snapshot_due || !interests_->SnapshotReady(id)) continue;
+    if (stream.last_snapshot != Clock::time_point{} && now < stream.last_snapshot + interval) {
+      next = std::min(next, stream.last_snapshot + interval);
+    } else {
+      PublishInterestSnapshot(id);
+    }
+  }
+  return next;
 }
 
 void Daemon::PublishInterestSnapshot(uint64_t id) {

@@ -192,15 +192,7 @@ std::chrono::steady_clock::time_point Daemon::ServeRequests() {
   if (stop_.load()) return Clock::time_point::max();
   const auto interval = std::chrono::milliseconds(config_.limits.snapshot_interval_ms);
   const auto now = Clock::now();
-  auto next = Clock::time_point::max();
-  for (auto& [id, stream] : streams_) {
-    if (!stream.snapshot_due) continue;
-    if (stream.last_snapshot != Clock::time_point{} && now < stream.last_snapshot + interval) {
-      next = std::min(next, stream.last_snapshot + interval);
-    } else {
-      PublishInterestSnapshot(id);
-    }
-  }
+  const auto next = ServeInterestSnapshots();
   if (!snapshot_due_) return next;
   if (last_snapshot_ != Clock::time_point{} && now < last_snapshot_ + interval) {
     return std::min(next, last_snapshot_ + interval);
@@ -259,6 +251,7 @@ void Daemon::PublishStatus(wire::Health health, bool with_interval) {
     request->set_raised(resync.raised);
   }
   for (const auto& r : pending_refusals_) *status_msg_.add_interest_refusals() = r;
+  for (uint64_t id : dropped_now_) status_msg_.add_dropped_interests(id);
   status_msg_.set_interests(static_cast<uint32_t>(interests_->size()));
   status_msg_.set_max_batch_items(config_.limits.max_batch_items);
   status_msg_.set_max_batch_bytes(config_.limits.max_batch_bytes);

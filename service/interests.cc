@@ -64,7 +64,8 @@ struct InterestTable::State {
   std::vector<uint64_t> inside_changed;
   PairSet pairs;  // the object pairs of the set
   Delta delta;
-  bool dirty = true;  // declared or changed: the next frame recomputes its pairs whole
+  bool dirty = true;     // declared or changed: the next frame recomputes its pairs whole
+  bool changed = false;  // changed since the last frame (its regions may be half replaced)
   uint64_t stamp = 0;
 };
 
@@ -74,13 +75,13 @@ InterestTable::InterestTable(EngineHost* host, InterestLimits limits,
 
 InterestTable::~InterestTable() = default;
 
-Status InterestTable::Validate(const wire::Interest& in, uint64_t owner) const {
+Status InterestTable::Validate(const wire::Interest& in, uint64_t owner, bool take_over) const {
   auto refuse = [&](std::string why) {
     return Status(StatusCode::kInvalidArgument, Name(in.id()) + ": " + std::move(why));
   };
   if (in.id() == 0) return refuse("id 0 is not an interest id (choose a random nonzero id)");
   const auto existing = by_id_.find(in.id());
-  if (existing != by_id_.end() && existing->second->owner != owner) {
+  if (existing != by_id_.end() && existing->second->owner != owner && !take_over) {
     return Status(StatusCode::kAlreadyExists,
                   Name(in.id()) + " is held by another client's writer");
   }
@@ -156,8 +157,8 @@ Status InterestTable::Validate(const wire::Interest& in, uint64_t owner) const {
   return Status::Ok();
 }
 
-Status InterestTable::Declare(const wire::Interest& in, uint64_t owner) {
-  if (Status s = Validate(in, owner); !s.ok()) return s;
+Status InterestTable::Declare(const wire::Interest& in, uint64_t owner, bool take_over) {
+  if (Status s = Validate(in, owner, take_over); !s.ok()) return s;
   auto& slot = by_id_[in.id()];
   const bool fresh = !slot;
   if (fresh) {
@@ -166,6 +167,8 @@ Status InterestTable::Declare(const wire::Interest& in, uint64_t owner) {
     slot->owner = owner;
   }
   State& s = *slot;
+  s.owner = owner;
+  if (!fresh) s.changed = true;
   Unwatch(s);
   if (Status st = PlaceRegions(s, in); !st.ok()) {
     // The boxes were checked: only the engine itself can refuse here (it says why).
@@ -207,7 +210,7 @@ Status InterestTable::PlaceRegions(State& s, const wire::Interest& in) {
       lo[a] = rlo[a] - m;
       hi[a] = rhi[a] + m;
     }
-    if (r < s.regions.size() && !s.regions[r].gone &&
+    if (r < s.regions.size() && !s.regions[r].gone && !limits_.fat_boxes &&
         (s.regions[r].leave_key != s.regions[r].enter_key) == grown) {
       // Moved in place: the engine reports exactly who entered and who left.
       State::Region& region = s.regions[r];
@@ -222,7 +225,7 @@ Status InterestTable::PlaceRegions(State& s, const wire::Interest& in) {
       continue;
     }
     if (r < s.regions.size()) {
-      EraseRegions(s, r);  // retires this one only if it has another shape (below)
+      EraseRegions(s, r);  // placed anew: another shape, or fat boxes
     } else {
       s.regions.emplace_back();
     }
@@ -571,6 +574,7 @@ void InterestTable::OnFrame(Flat* uncollide, Flat* collide) {
       region.carry.Clear();
     }
     while (!s->regions.empty() && s->regions.back().gone) s->regions.pop_back();
+    s->changed = false;
     SortFlat(&s->delta.uncollide);
     SortFlat(&s->delta.collide);
   }
@@ -595,6 +599,11 @@ bool InterestTable::Snapshot(uint64_t id, std::vector<std::pair<uint64_t, uint64
   out->insert(out->end(), s.pairs.begin(), s.pairs.end());
   std::sort(out->begin(), out->end());
   return true;
+}
+
+bool InterestTable::SnapshotReady(uint64_t id) const {
+  const auto it = by_id_.find(id);
+  return it != by_id_.end() && !it->second->changed;
 }
 
 uint64_t InterestTable::SetSize(uint64_t id) const {

@@ -48,6 +48,9 @@ struct InterestLimits {
   uint64_t max_interests = 1000;
   uint64_t max_regions = 256;  ///< per interest
   uint64_t max_keys = 100000;  ///< per interest: keys + producers
+  /// The engine fattens boxes (engine.margin > 0): a changed region is placed anew instead of
+  /// moved, so that its box's fat box stays inside its grown box's.
+  bool fat_boxes = false;
 };
 
 class InterestTable {
@@ -67,7 +70,8 @@ class InterestTable {
 
   /// Declares or replaces interest.id(), owned by owner (the declaring writer). A refusal
   /// leaves the previous declaration in force; its message names the item and the reason.
-  Status Declare(const wire::Interest& interest, uint64_t owner);
+  /// With take_over, an interest held by another owner (one that is gone) passes to owner.
+  Status Declare(const wire::Interest& interest, uint64_t owner, bool take_over = false);
   /// Drops an interest; NotFound if there is none, AlreadyExists if another owner holds it.
   Status Drop(uint64_t id, uint64_t owner);
   /// Drops every interest of owner (its writer went away); returns their ids.
@@ -81,6 +85,9 @@ class InterestTable {
   void ForEachDelta(const std::function<void(uint64_t, const Delta&)>& f) const;
   /// The interest's current set, sorted (region pairs first); false if there is no such interest.
   bool Snapshot(uint64_t id, std::vector<std::pair<uint64_t, uint64_t>>* out) const;
+  /// False from a change of the interest until the next OnFrame: its set is the last frame's
+  /// only once the change has been applied (a snapshot waits for it).
+  bool SnapshotReady(uint64_t id) const;
   /// The interest's current set size; 0 if there is none.
   uint64_t SetSize(uint64_t id) const;
   /// The owner of an interest (0 if there is none).
@@ -116,7 +123,7 @@ class InterestTable {
     bool leave;  // an object leaves on an uncollide with it
   };
 
-  Status Validate(const wire::Interest& interest, uint64_t owner) const;
+  Status Validate(const wire::Interest& interest, uint64_t owner, bool take_over) const;
   // Places the interest's regions in the engine (the first n_keep reuse their objects).
   Status PlaceRegions(State& s, const wire::Interest& interest);
   void EraseRegions(State& s, size_t from);

@@ -43,6 +43,9 @@ Status InterestClient::Declare(const wire::Interest& interest) {
   request_.Clear();
   *request_.mutable_declare() = interest;
   if (Status s = Send(); !s.ok()) return s;
+  const auto old = declared_.find(interest.id());
+  before_[interest.id()] =
+      old == declared_.end() ? std::nullopt : std::optional<wire::Interest>(old->second);
   declared_[interest.id()] = interest;
   return Status::Ok();
 }
@@ -52,15 +55,30 @@ Status InterestClient::Drop(uint64_t id) {
   request_.set_drop(id);
   if (Status s = Send(); !s.ok()) return s;
   declared_.erase(id);
+  before_.erase(id);
   return Status::Ok();
 }
 
 Status InterestClient::OnStatus(const wire::DaemonStatus& status,
                                 std::vector<wire::InterestRefusal>* refusals) {
-  if (refusals != nullptr) {
-    for (const auto& r : status.interest_refusals()) {
-      if (r.client() == client_) refusals->push_back(r);
+  for (const auto& r : status.interest_refusals()) {
+    if (r.client() != client_) continue;
+    if (refusals != nullptr) refusals->push_back(r);
+    if (const auto b = before_.find(r.interest()); b != before_.end()) {
+      if (b->second) {
+        declared_[r.interest()] = *b->second;
+      } else {
+        declared_.erase(r.interest());
+      }
+      before_.erase(b);
     }
+  }
+  for (uint64_t id : status.dropped_interests()) {
+    const auto it = declared_.find(id);
+    if (it == declared_.end()) continue;
+    request_.Clear();
+    *request_.mutable_declare() = it->second;
+    if (Status s = Send(); !s.ok()) return s;
   }
   if (status.epoch() == 0 || status.epoch() == epoch_) return Status::Ok();
   const bool restarted = epoch_ != 0;

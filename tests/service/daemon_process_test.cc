@@ -425,7 +425,10 @@ TEST(DaemonProcess, ASubscriberKilledWithSigkillFreesItsInterest) {
   const size_t before = status.reports().size();
   size_t index = 0;
   ASSERT_TRUE(status.WaitUntil(
-      [&](const wire::DaemonStatus& r) { return index++ >= before && r.interests() == 0; }, 20s))
+      [&](const wire::DaemonStatus& r) {
+        return index++ >= before && r.interests() == 0 && r.dropped_interests_size() == 1;
+      },
+      20s))
       << "the killed subscriber's interest was not dropped";
   const double after =
       std::chrono::duration<double>(std::chrono::steady_clock::now() - killed).count();

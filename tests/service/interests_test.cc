@@ -169,8 +169,11 @@ class InterestScene {
   }
 
   void Declare(const wire::Interest& in) {
+    const bool changed = table_.Contains(in.id());
     Status s = table_.Declare(in, /*owner=*/7);
     ASSERT_TRUE(s.ok()) << s.ToString();
+    // A changed interest's snapshot waits for the frame that applies the change.
+    EXPECT_EQ(table_.SnapshotReady(in.id()), !changed);
     oracle_.Declare(in);
   }
 
@@ -206,6 +209,7 @@ class InterestScene {
       ASSERT_EQ(ToSet(got.uncollide), unc) << "interest " << id << " frame " << frame;
       ASSERT_EQ(ToSet(got.collide), col) << "interest " << id << " frame " << frame;
       std::vector<Pair> snapshot;
+      ASSERT_TRUE(table_.SnapshotReady(id));
       ASSERT_TRUE(table_.Snapshot(id, &snapshot));
       ASSERT_EQ(PairSet(snapshot.begin(), snapshot.end()), d.set) << "interest " << id;
       ASSERT_EQ(table_.SetSize(id), d.set.size());

@@ -98,10 +98,12 @@ void InterestsReader(dds_qos_t* qos) {
 }
 void RepliesWriter(dds_qos_t* qos, std::chrono::milliseconds write_timeout) {
   dds_qset_reliability(qos, DDS_RELIABILITY_RELIABLE, Ms(write_timeout));
+  dds_qset_durability(qos, DDS_DURABILITY_TRANSIENT_LOCAL);  // the first answer precedes the match
   dds_qset_history(qos, DDS_HISTORY_KEEP_LAST, 64);
 }
 void RepliesReader(dds_qos_t* qos) {
   dds_qset_reliability(qos, DDS_RELIABILITY_RELIABLE, DDS_SECS(1));
+  dds_qset_durability(qos, DDS_DURABILITY_TRANSIENT_LOCAL);
   dds_qset_history(qos, DDS_HISTORY_KEEP_LAST, 64);
 }
 }  // namespace qos

@@ -16,6 +16,7 @@
 #include <cstdint>
 #include <map>
 #include <memory>
+#include <optional>
 #include <span>
 #include <string>
 #include <vector>
@@ -43,7 +44,10 @@ class InterestClient {
   /// Drops an interest of this client.
   Status Drop(uint64_t id);
   /// Feeds a status report: declares every interest again when the daemon's epoch changed (a
-  /// restarted daemon), and appends the refusals addressed to this client to *refusals.
+  /// restarted daemon), and those of its interests the daemon dropped while this client was cut
+  /// off or hung (DaemonStatus.dropped_interests); appends the refusals addressed to this client
+  /// to *refusals. A refused declaration is forgotten: the one before it (if any) is what a
+  /// restarted daemon is given again.
   Status OnStatus(const wire::DaemonStatus& status,
                   std::vector<wire::InterestRefusal>* refusals = nullptr);
   /// The keys of the objects overlapping [lo, hi] as of the daemon's last frame, sorted, and
@@ -67,6 +71,9 @@ class InterestClient {
   uint64_t next_query_ = 0;
   uint64_t epoch_ = 0;
   std::map<uint64_t, wire::Interest> declared_;
+  // For each interest: the declaration before its last one (none for a new interest), restored
+  // if the daemon refuses the last one.
+  std::map<uint64_t, std::optional<wire::Interest>> before_;
   wire::InterestRequest request_;
   std::string buffer_;
 };
