@@ -158,6 +158,8 @@ class Daemon {
   struct Stream;
   // Numbers event_msg_ in the interest's stream and writes it; a failure is counted and logged.
   void WriteStreamPart(uint64_t id, Stream& stream);
+  // Takes a dropped interest's stream out of streams_; reaper_ deletes its writer.
+  void RetireStream(uint64_t id);
   // The whole world's overlapping pairs (the engine's, without the regions').
   uint64_t WorldOverlaps() const;
   void ReportRejection(uint32_t producer, const wire::UpdateBatch* batch, Reject&& reject);
@@ -176,6 +178,9 @@ class Daemon {
   std::unique_ptr<KeepAwake> keep_awake_;     // frames.keep_cpus_awake_ms > 0, while Run serves
   std::atomic<unsigned> cpus_kept_awake_{0};  // its threads, for other threads to read
   std::unique_ptr<transport::Connection> connection_;
+  // After connection_ (destroyed before it): deletes the writers of dropped interests and gone
+  // clients off the loop's thread (dds::Reaper says why).
+  std::unique_ptr<dds::Reaper> reaper_ = std::make_unique<dds::Reaper>();
   dds::Reader updates_;
   dds::Writer events_;
   dds::Writer status_;
@@ -261,6 +266,7 @@ class Daemon {
     std::chrono::steady_clock::time_point last_snapshot{};
   };
   std::unordered_map<uint64_t, Stream> streams_;
+
   struct ReplyWriter {
     dds::Writer writer;
     dds_instance_handle_t owner = 0;

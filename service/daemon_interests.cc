@@ -113,7 +113,7 @@ void Daemon::ServeInterestRequest(std::span<const uint8_t> payload, dds_instance
         RefuseInterest(client, id, "drop: " + st.message());
         return;
       }
-      streams_.erase(id);
+      RetireStream(id);
       interests_changed_ = true;
       spdlog::info("interest {} dropped by client {}", Hex(id), Hex(client));
       return;
@@ -237,13 +237,20 @@ std::chrono::steady_clock::time_point Daemon::CheckInterestOwners() {
     const dds_instance_handle_t writer = it->first;
     const std::vector<uint64_t> dropped = interests_->DropOwner(writer);
     for (uint64_t id : dropped) {
-      streams_.erase(id);
+      RetireStream(id);
       dropped_now_.push_back(id);
       spdlog::info("interest {} dropped: its writer has not been alive for producers.lease_s",
                    Hex(id));
     }
     if (!dropped.empty()) interests_changed_ = true;
-    std::erase_if(reply_writers_, [&](const auto& r) { return r.second.owner == writer; });
+    for (auto r = reply_writers_.begin(); r != reply_writers_.end();) {
+      if (r->second.owner != writer) {
+        ++r;
+        continue;
+      }
+      reaper_->Delete(std::move(r->second.writer));
+      r = reply_writers_.erase(r);
+    }
     it = interest_down_since_.erase(it);
   }
   interests_count_.store(interests_->size());
@@ -270,6 +277,13 @@ void Daemon::PublishInterestEvents(uint64_t frame, uint32_t source_producer, uin
     });
   });
   if (!stop_.load()) (void)ServeInterestSnapshots();  // those that waited for this frame
+}
+
+void Daemon::RetireStream(uint64_t id) {
+  const auto stream = streams_.find(id);
+  if (stream == streams_.end()) return;
+  reaper_->Delete(std::move(stream->second.writer));
+  streams_.erase(stream);
 }
 
 std::chrono::steady_clock::time_point Daemon::ServeInterestSnapshots() {

@@ -202,6 +202,38 @@ Status Writer::Write(uint64_t seq, std::string_view payload) {
   return FromRetcode(dds_write(writer_.get(), &sample), "dds_write");
 }
 
+Reaper::Reaper() {
+  thread_ = std::thread([this] {
+    std::unique_lock lock(mutex_);
+    for (;;) {
+      wake_.wait(lock, [this] { return stop_ || !pending_.empty(); });
+      std::vector<Writer> batch;
+      batch.swap(pending_);
+      lock.unlock();
+      batch.clear();  // the deletions, outside the lock
+      lock.lock();
+      if (stop_ && pending_.empty()) return;
+    }
+  });
+}
+
+Reaper::~Reaper() {
+  {
+    std::lock_guard lock(mutex_);
+    stop_ = true;
+  }
+  wake_.notify_one();
+  thread_.join();
+}
+
+void Reaper::Delete(Writer&& writer) {
+  {
+    std::lock_guard lock(mutex_);
+    pending_.push_back(std::move(writer));
+  }
+  wake_.notify_one();
+}
+
 uint32_t Writer::MatchedReaders() const {
   dds_publication_matched_status_t status{};
   if (dds_get_publication_matched_status(writer_.get(), &status) < 0) return 0;

@@ -14,6 +14,7 @@
 
 #include <array>
 #include <chrono>
+#include <condition_variable>
 #include <cstdint>
 #include <functional>
 #include <memory>
@@ -21,6 +22,7 @@
 #include <span>
 #include <string>
 #include <string_view>
+#include <thread>
 #include <vector>
 
 #include <dds/dds.h>
@@ -147,6 +149,28 @@ class Writer {
  private:
   Entity publisher_;  // its own publisher, when created in another partition (deleted last)
   Entity writer_;
+};
+
+/// Deletes writers on a thread of its own. Why: Cyclone's dds_delete of a writer may wait for its
+/// delivery threads, and a delivery thread blocked on a full KEEP_ALL reader (the daemon's
+/// updates reader under load) waits for that reader's owner to take from it: when that owner is
+/// the thread that deletes, neither ever proceeds. The reaper must be destroyed before the
+/// participant of the writers it holds; its destructor deletes what is left and joins.
+class Reaper {
+ public:
+  Reaper();
+  ~Reaper();
+  Reaper(const Reaper&) = delete;
+  Reaper& operator=(const Reaper&) = delete;
+  /// Takes the writer; it is deleted soon, on the reaper's thread.
+  void Delete(Writer&& writer);
+
+ private:
+  std::mutex mutex_;
+  std::condition_variable wake_;
+  std::vector<Writer> pending_;
+  bool stop_ = false;
+  std::thread thread_;
 };
 
 /// The liveliness of the writers a reader matched, as Cyclone reports it change by change
