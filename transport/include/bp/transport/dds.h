@@ -151,11 +151,11 @@ class Writer {
   Entity writer_;
 };
 
-/// Deletes writers on a thread of its own. Why: Cyclone's dds_delete of a writer may wait for its
-/// delivery threads, and a delivery thread blocked on a full KEEP_ALL reader (the daemon's
-/// updates reader under load) waits for that reader's owner to take from it: when that owner is
-/// the thread that deletes, neither ever proceeds. The reaper must be destroyed before the
-/// participant of the writers it holds; its destructor deletes what is left and joins.
+/// Deletes writers on a thread of its own. Why: under load, Cyclone's dds_delete of a writer was
+/// seen to wait until the deleting thread itself made progress elsewhere (the daemon's loop hung
+/// in it; done on another thread, the same delete completes while the loop goes on). The reaper
+/// must be destroyed before the participant of the writers it holds; its destructor deletes what
+/// is left and joins.
 class Reaper {
  public:
   Reaper();
