@@ -29,6 +29,21 @@ void SortFlat(std::vector<uint64_t>* flat) {
   }
 }
 
+// Removes one occurrence of value from the list of key in lists (order not kept), and the
+// entry once its list is empty.
+template <class Map, class V>
+void EraseFromList(Map& lists, const typename Map::key_type& key, const V& value) {
+  const auto it = lists.find(key);
+  if (it == lists.end()) return;
+  auto& list = it->second;
+  const auto at = std::find(list.begin(), list.end(), value);
+  if (at != list.end()) {
+    *at = list.back();
+    list.pop_back();
+  }
+  if (list.empty()) lists.erase(it);
+}
+
 // Pairs at the front of a canonical list whose first key is a region's (below 2^48).
 size_t RegionPrefix(const std::vector<uint64_t>& flat) {
   size_t n = 0;
@@ -291,17 +306,7 @@ std::vector<uint64_t> InterestTable::DropOwner(uint64_t owner) {
 
 void InterestTable::AddWatch(uint64_t key, State* s) { watch_keys_[key].push_back(s); }
 
-void InterestTable::RemoveWatch(uint64_t key, State* s) {
-  const auto it = watch_keys_.find(key);
-  if (it == watch_keys_.end()) return;
-  auto& list = it->second;
-  const auto at = std::find(list.begin(), list.end(), s);
-  if (at != list.end()) {
-    *at = list.back();
-    list.pop_back();
-  }
-  if (list.empty()) watch_keys_.erase(it);
-}
+void InterestTable::RemoveWatch(uint64_t key, State* s) { EraseFromList(watch_keys_, key, s); }
 
 void InterestTable::Watch(State& s) {
   for (uint64_t key : s.keys) AddWatch(key, &s);
@@ -399,17 +404,8 @@ void InterestTable::Link(uint64_t a, uint64_t b) {
 }
 
 void InterestTable::Unlink(uint64_t a, uint64_t b) {
-  for (auto [x, y] : {std::pair{a, b}, std::pair{b, a}}) {
-    const auto it = adjacency_.find(x);
-    if (it == adjacency_.end()) continue;
-    auto& list = it->second;
-    const auto at = std::find(list.begin(), list.end(), y);
-    if (at != list.end()) {
-      *at = list.back();
-      list.pop_back();
-    }
-    if (list.empty()) adjacency_.erase(it);
-  }
+  EraseFromList(adjacency_, a, b);
+  EraseFromList(adjacency_, b, a);
 }
 
 void InterestTable::Recompute(State& s) {

@@ -96,9 +96,7 @@ class InterestTable {
   bool Contains(uint64_t id) const;
   /// Interests in force.
   size_t size() const { return by_id_.size(); }
-  /// Engine objects that are regions, and region pairs the engine holds (to take out of the
-  /// whole world's counts).
-  uint64_t region_objects() const { return region_refs_.size(); }
+  /// Region pairs the engine holds (to take out of the whole world's counts).
   uint64_t region_pairs() const { return region_pairs_; }
   /// Internal unless the watch lists name exactly each interest's
   /// keys, inside objects (with pairs_inside), producers and category criterion. For tests.

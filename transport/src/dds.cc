@@ -168,17 +168,33 @@ Status Participant::CreateTopic(const std::string& name, dds_entity_t* out_topic
   return Status::Ok();
 }
 
+namespace {
+// The parent of a writer (publisher) or reader (subscriber): the participant's own, or, with a
+// partition, a new one of that partition, owned by *own.
+Status PartitionParent(const Participant& participant, const std::string* partition, bool publisher,
+                       Entity* own, dds_entity_t* parent) {
+  *parent = publisher ? participant.publisher() : participant.subscriber();
+  if (partition == nullptr) return Status::Ok();
+  Qos qos;
+  dds_qset_partition1(qos.get(), partition->c_str());
+  const dds_entity_t p = publisher ? dds_create_publisher(participant.get(), qos.get(), nullptr)
+                                   : dds_create_subscriber(participant.get(), qos.get(), nullptr);
+  if (p < 0) {
+    return FromRetcode(p, std::string("creating DDS ") + (publisher ? "publisher" : "subscriber") +
+                              " for partition '" + *partition + "'");
+  }
+  *own = Entity(p);
+  *parent = p;
+  return Status::Ok();
+}
+}  // namespace
+
 Status Writer::Create(const Participant& participant, dds_entity_t topic, const Qos& qos,
                       Writer* out, const std::string* partition) {
   Entity publisher;
-  dds_entity_t parent = participant.publisher();
-  if (partition != nullptr) {
-    Qos pqos;
-    dds_qset_partition1(pqos.get(), partition->c_str());
-    const dds_entity_t p = dds_create_publisher(participant.get(), pqos.get(), nullptr);
-    if (p < 0) return FromRetcode(p, "creating DDS publisher for partition '" + *partition + "'");
-    publisher = Entity(p);
-    parent = p;
+  dds_entity_t parent = 0;
+  if (Status s = PartitionParent(participant, partition, true, &publisher, &parent); !s.ok()) {
+    return s;
   }
   const dds_entity_t writer = dds_create_writer(parent, topic, qos.get(), nullptr);
   if (writer < 0) return FromRetcode(writer, "creating DDS writer");
@@ -273,14 +289,9 @@ void WriterLiveliness::SetOnChange(std::function<void()> on_change) {
 Status Reader::Create(const Participant& participant, dds_entity_t topic, const Qos& qos,
                       Reader* out, WriterLiveliness* liveliness, const std::string* partition) {
   Entity subscriber;
-  dds_entity_t parent = participant.subscriber();
-  if (partition != nullptr) {
-    Qos sqos;
-    dds_qset_partition1(sqos.get(), partition->c_str());
-    const dds_entity_t p = dds_create_subscriber(participant.get(), sqos.get(), nullptr);
-    if (p < 0) return FromRetcode(p, "creating DDS subscriber for partition '" + *partition + "'");
-    subscriber = Entity(p);
-    parent = p;
+  dds_entity_t parent = 0;
+  if (Status s = PartitionParent(participant, partition, false, &subscriber, &parent); !s.ok()) {
+    return s;
   }
   dds_listener_t* listener = nullptr;
   if (liveliness != nullptr) {
