@@ -85,10 +85,8 @@ void Daemon::ServeInterestRequest(std::span<const uint8_t> payload, dds_instance
                                      std::chrono::milliseconds(config_.dds.write_timeout_ms));
         // A subscriber whose reader matches the new writer late still receives the recent parts.
         dds_qset_durability(qos.get(), DDS_DURABILITY_TRANSIENT_LOCAL);
-        // Sent by Cyclone's send thread, off this loop (dds.interest_latency_budget_ms).
-        if (config_.dds.interest_latency_budget_ms > 0) {
-          dds_qset_latency_budget(qos.get(), DDS_MSECS(config_.dds.interest_latency_budget_ms));
-        }
+        // No latency budget: Cyclone's asynchronous write (what a budget turns on) was seen to
+        // lose parts of a stream that then stays quiet (docs/DESIGN.md, "Interests").
         const std::string partition = transport::InterestPartition(config_.dds.partition, in.id());
         if (Status st = connection_->CreateWriter(transport::TopicId::kEvents, qos,
                                                   &stream->second.writer, &partition);

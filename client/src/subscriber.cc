@@ -19,8 +19,6 @@ Status Subscriber<Msg>::Create(Connection& connection, int32_t depth,
     if (interest != 0) {
       // The interest's writer keeps its recent parts for a reader that matches it late.
       dds_qset_durability(qos.get(), DDS_DURABILITY_TRANSIENT_LOCAL);
-      // Matches a writer whose latency budget is up to 1 s (dds.interest_latency_budget_ms).
-      dds_qset_latency_budget(qos.get(), DDS_SECS(1));
       partition = transport::InterestPartition(connection.options().partition, interest);
     }
   } else {

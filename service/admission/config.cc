@@ -29,9 +29,9 @@ constexpr std::array<std::string_view, 6> kSections{"engine", "dds",     "frames
                                                     "limits", "logging", "producers"};
 constexpr std::array<std::string_view, 6> kEngineKeys{"algorithm", "dimension", "coordinate",
                                                       "cell_size", "threads",   "margin"};
-constexpr std::array<std::string_view, 8> kDdsKeys{
-    "domain",           "cyclone_config", "partition",    "topics",
-    "write_timeout_ms", "event_history",  "update_queue", "interest_latency_budget_ms"};
+constexpr std::array<std::string_view, 7> kDdsKeys{
+    "domain",           "cyclone_config", "partition",   "topics",
+    "write_timeout_ms", "event_history",  "update_queue"};
 constexpr std::array<std::string_view, 6> kTopicKeys{"updates",  "events",    "status",
                                                      "requests", "interests", "replies"};
 constexpr std::array<std::string_view, 3> kFramesKeys{"boundary", "tick_ms", "keep_cpus_awake_ms"};
@@ -145,8 +145,6 @@ void ReadDds(YamlReader& r, const Field& section, DdsConfig* d) {
       r.ReadInt(v, 1, kMaxWriteTimeoutMs, &d->write_timeout_ms);
     } else if (name == "event_history") {
       r.ReadInt(v, 1, kMaxQueueDepth, &d->event_history);
-    } else if (name == "interest_latency_budget_ms") {
-      r.ReadInt(v, 0, 1000, &d->interest_latency_budget_ms);
     } else if (name == "update_queue") {
       r.ReadInt(v, 1, kMaxQueueDepth, &d->update_queue);
     }
@@ -447,7 +445,6 @@ std::string ConfigToYaml(const Config& c) {
   line(k1, "write_timeout_ms", std::to_string(c.dds.write_timeout_ms));
   line(k1, "event_history", std::to_string(c.dds.event_history));
   line(k1, "update_queue", std::to_string(c.dds.update_queue));
-  line(k1, "interest_latency_budget_ms", std::to_string(c.dds.interest_latency_budget_ms));
   y += "frames:\n";
   line(k1, "boundary", FrameBoundaryName(c.frames.boundary));
   line(k1, "tick_ms", FormatNumber(c.frames.tick_ms));

@@ -77,10 +77,7 @@ struct DdsConfig {
   TopicsConfig topics;         ///< non-empty, DDS topic-name characters only [A-Za-z0-9_/]
   int write_timeout_ms = 100;  ///< 1..60000: max blocking time of dds_write
   int event_history = 64;      ///< 1..100000: KEEP_LAST depth of the events writer
-  /// 0..1000: the latency budget of interests' writers (Cyclone's send thread sends their parts
-  /// within it; 0 = written by the daemon's loop itself)
-  int interest_latency_budget_ms = 2;
-  int update_queue = 32;  ///< 1..100000: resource limit (max samples) of the updates reader
+  int update_queue = 32;       ///< 1..100000: resource limit (max samples) of the updates reader
 
   /// Member-wise equality.
   bool operator==(const DdsConfig&) const = default;
