@@ -761,7 +761,7 @@ TEST(ConfigToYamlTest, WritesEveryKeyPlainWhereUnambiguous) {
         "  file: \"\"\n", "producers:\n", "  lease_s: 10.0\n"}) {
     EXPECT_TRUE(Contains(yaml, line)) << line << "---\n" << yaml;
   }
-  EXPECT_EQ(Lines(yaml).size(), 43u) << yaml;  // 6 sections + topics + 36 keys
+  EXPECT_EQ(Lines(yaml).size(), 42u) << yaml;  // 6 sections + topics + 35 keys
 }
 
 TEST(ConfigNames, AreCanonical) {
