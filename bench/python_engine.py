@@ -86,11 +86,7 @@ class RtreePeer:
 
     def frame(self, f):
         collides, uncollides = [], []
-        for k in f["erase"].tolist():
-            self.index.delete(k, self.box.pop(k))
-            for x in self.partners.pop(k):
-                self.partners[x].discard(k)
-                uncollides.append((min(k, x), max(k, x)))
+        self._erase(f, uncollides, delete=True)
         changed = []
         for keys, lo, hi in ((f["update_keys"], f["update_lo"], f["update_hi"]),
                              (f["insert_keys"], f["insert_lo"], f["insert_hi"])):
@@ -102,6 +98,21 @@ class RtreePeer:
                 self.box[k] = tuple(lo[i].tolist()) + tuple(hi[i].tolist())
                 self.index.insert(k, self.box[k])
                 changed.append(k)
+        self._requery(changed, collides, uncollides)
+        return collides, uncollides
+
+    def _erase(self, f, uncollides, delete):
+        """The erased boxes out of the partner sets (and of the index, if delete)."""
+        for k in f["erase"].tolist():
+            box = self.box.pop(k)
+            if delete:
+                self.index.delete(k, box)
+            for x in self.partners.pop(k):
+                self.partners[x].discard(k)
+                uncollides.append((min(k, x), max(k, x)))
+
+    def _requery(self, changed, collides, uncollides):
+        """Each changed box queried again; its partners' differences are the events."""
         for k in changed:
             now = set(self.index.intersection(self.box[k]))
             now.discard(k)
@@ -113,7 +124,6 @@ class RtreePeer:
                 self.partners[x].discard(k)
                 uncollides.append((min(k, x), max(k, x)))
             self.partners[k] = now
-        return collides, uncollides
 
     def pairs(self):
         return {(a, b) for a, ps in self.partners.items() for b in ps if a < b}
@@ -130,11 +140,7 @@ class RtreeRebuildPeer(RtreePeer):
     def frame(self, f):
         from rtree import index
         collides, uncollides = [], []
-        for k in f["erase"].tolist():
-            del self.box[k]
-            for x in self.partners.pop(k):
-                self.partners[x].discard(k)
-                uncollides.append((min(k, x), max(k, x)))
+        self._erase(f, uncollides, delete=False)
         changed = []
         for keys, lo, hi in ((f["update_keys"], f["update_lo"], f["update_hi"]),
                              (f["insert_keys"], f["insert_lo"], f["insert_hi"])):
@@ -146,17 +152,7 @@ class RtreeRebuildPeer(RtreePeer):
                 changed.append(k)
         self.index = index.Index(((k, b, None) for k, b in self.box.items()),
                                  properties=self.prop)
-        for k in changed:
-            now = set(self.index.intersection(self.box[k]))
-            now.discard(k)
-            then = self.partners[k]
-            for x in now - then:
-                self.partners[x].add(k)
-                collides.append((min(k, x), max(k, x)))
-            for x in then - now:
-                self.partners[x].discard(k)
-                uncollides.append((min(k, x), max(k, x)))
-            self.partners[k] = now
+        self._requery(changed, collides, uncollides)
         return collides, uncollides
 
 

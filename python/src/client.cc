@@ -57,6 +57,16 @@ constexpr uint64_t kLocalIdLimit = uint64_t{1} << 48;
 void Check(const Status& s, const std::string& what) {
   if (!s.ok()) Throw(s, what);
 }
+// Runs f (which returns a Status) with the GIL released, then Check.
+template <class F>
+void WithoutGil(const std::string& what, F&& f) {
+  Status s;
+  {
+    py::gil_scoped_release release;
+    s = f();
+  }
+  Check(s, what);
+}
 
 std::chrono::milliseconds Millis(double seconds, const std::string& what) {
   if (!(seconds >= 0) || !std::isfinite(seconds)) {
@@ -184,22 +194,14 @@ class PyPublisher {
     client::PublisherOptions options;
     options.write_timeout = Millis(write_timeout, "Publisher");
     options.restate_on_restart = restate_on_restart;
-    Status s;
-    {
-      py::gil_scoped_release release;
-      s = client::UpdatePublisher::Create(*connection_->connection, producer, options, &pub_);
-    }
-    Check(s, "Publisher");
+    WithoutGil("Publisher", [&] {
+      return client::UpdatePublisher::Create(*connection_->connection, producer, options, &pub_);
+    });
   }
 
   void WaitForDaemon(double timeout) {
     const auto t = Millis(timeout, "wait_for_daemon");
-    Status s;
-    {
-      py::gil_scoped_release release;
-      s = pub_->WaitForDaemon(t);
-    }
-    Check(s, "Publisher.wait_for_daemon");
+    WithoutGil("Publisher.wait_for_daemon", [&] { return pub_->WaitForDaemon(t); });
   }
 
   // Publishes one batch; returns its frame number.
@@ -240,41 +242,21 @@ class PyPublisher {
     if (!erase_ids.is_none()) {
       for (uint64_t id : LocalIds(erase_ids, "publish: erase_ids")) batch.add_erases(id);
     }
-    Status s;
-    {
-      py::gil_scoped_release release;
-      s = pub_->Publish(&batch);
-    }
-    Check(s, "publish");
+    WithoutGil("publish", [&] { return pub_->Publish(&batch); });
     if (end_of_frame) next_frame_ = batch.frame() + 1;
     return batch.frame();
   }
 
   void WaitForReaders(uint32_t n, double timeout) {
     const auto t = Millis(timeout, "wait_for_readers");
-    Status s;
-    {
-      py::gil_scoped_release release;
-      s = pub_->WaitForReaders(n, t);
-    }
-    Check(s, "Publisher.wait_for_readers");
+    WithoutGil("Publisher.wait_for_readers", [&] { return pub_->WaitForReaders(n, t); });
   }
   void Flush(double timeout) {
     const auto t = Millis(timeout, "flush");
-    Status s;
-    {
-      py::gil_scoped_release release;
-      s = pub_->Flush(t);
-    }
-    Check(s, "Publisher.flush");
+    WithoutGil("Publisher.flush", [&] { return pub_->Flush(t); });
   }
   void Maintain() {
-    Status s;
-    {
-      py::gil_scoped_release release;
-      s = pub_->Maintain();
-    }
-    Check(s, "Publisher.maintain");
+    WithoutGil("Publisher.maintain", [&] { return pub_->Maintain(); });
   }
   const client::UpdatePublisher& publisher() const { return *pub_; }
   int dims() const { return connection_->dims; }
@@ -321,31 +303,18 @@ class PyEventSubscriber {
   PyEventSubscriber(std::shared_ptr<PyConnection> connection, int32_t depth, uint64_t interest)
       : connection_(std::move(connection)) {
     if (depth < 1) throw py::value_error("EventSubscriber: depth must be >= 1");
-    Status s;
-    {
-      py::gil_scoped_release release;
-      s = client::EventSubscriber::Create(*connection_->connection, depth, &sub_, interest);
-    }
-    Check(s, "EventSubscriber");
+    WithoutGil("EventSubscriber", [&] {
+      return client::EventSubscriber::Create(*connection_->connection, depth, &sub_, interest);
+    });
   }
   void WaitForDaemon(double timeout) {
     const auto t = Millis(timeout, "wait_for_daemon");
-    Status s;
-    {
-      py::gil_scoped_release release;
-      s = sub_->WaitForDaemon(t);
-    }
-    Check(s, "EventSubscriber.wait_for_daemon");
+    WithoutGil("EventSubscriber.wait_for_daemon", [&] { return sub_->WaitForDaemon(t); });
   }
   std::vector<wire::EventBatch> PollRaw(double timeout) {
     const auto t = Millis(timeout, "poll");
     std::vector<wire::EventBatch> got;
-    Status s;
-    {
-      py::gil_scoped_release release;
-      s = sub_->Poll(t, &got);
-    }
-    Check(s, "poll");
+    WithoutGil("poll", [&] { return sub_->Poll(t, &got); });
     return got;
   }
   std::vector<EventPart> Poll(double timeout) {
@@ -367,12 +336,9 @@ class PyOverlapView {
  public:
   PyOverlapView(std::shared_ptr<PyConnection> connection, int32_t depth, uint64_t interest)
       : connection_(connection), events_(connection, depth, interest), interest_(interest) {
-    Status s;
-    {
-      py::gil_scoped_release release;
-      s = client::SnapshotRequester::Create(*connection_->connection, &requester_);
-    }
-    Check(s, "OverlapView");
+    WithoutGil("OverlapView", [&] {
+      return client::SnapshotRequester::Create(*connection_->connection, &requester_);
+    });
   }
   void WaitForDaemon(double timeout) { events_.WaitForDaemon(timeout); }
   // Applies what arrives within timeout; returns the parts applied.
@@ -385,12 +351,9 @@ class PyOverlapView {
     const auto now = std::chrono::steady_clock::now();
     if (view_.wants_snapshot() && now - last_request_ >= std::chrono::seconds(1)) {
       last_request_ = now;
-      Status s;
-      {
-        py::gil_scoped_release release;
-        s = requester_->Request(view_.resyncs() == 0 ? "join" : "resync", interest_);
-      }
-      Check(s, "OverlapView: snapshot request");
+      WithoutGil("OverlapView: snapshot request", [&] {
+        return requester_->Request(view_.resyncs() == 0 ? "join" : "resync", interest_);
+      });
     }
     return out;
   }
@@ -433,22 +396,14 @@ class PyStatusSubscriber {
  public:
   PyStatusSubscriber(std::shared_ptr<PyConnection> connection, int32_t depth)
       : connection_(std::move(connection)) {
-    Status s;
-    {
-      py::gil_scoped_release release;
-      s = client::StatusSubscriber::Create(*connection_->connection, depth, &sub_);
-    }
-    Check(s, "StatusSubscriber");
+    WithoutGil("StatusSubscriber", [&] {
+      return client::StatusSubscriber::Create(*connection_->connection, depth, &sub_);
+    });
   }
   py::list Poll(double timeout) {
     const auto t = Millis(timeout, "poll");
     std::vector<wire::DaemonStatus> got;
-    Status s;
-    {
-      py::gil_scoped_release release;
-      s = sub_->Poll(t, &got);
-    }
-    Check(s, "StatusSubscriber.poll");
+    WithoutGil("StatusSubscriber.poll", [&] { return sub_->Poll(t, &got); });
     py::list out;
     for (const auto& m : got) out.append(ToDict(m));
     return out;
@@ -475,12 +430,7 @@ class PyInterestClient {
   }
   void WaitForDaemon(double timeout) {
     const auto t = Millis(timeout, "wait_for_daemon");
-    Status s;
-    {
-      py::gil_scoped_release release;
-      s = client_->WaitForDaemon(t);
-    }
-    Check(s, "InterestClient.wait_for_daemon");
+    WithoutGil("InterestClient.wait_for_daemon", [&] { return client_->WaitForDaemon(t); });
   }
   uint64_t Declare(const py::object& regions_lo, const py::object& regions_hi, double leave_margin,
                    bool pairs_inside, const py::object& keys, const py::object& producers,
@@ -514,21 +464,11 @@ class PyInterestClient {
       }
     }
     in.set_category_mask(category_mask);
-    Status s;
-    {
-      py::gil_scoped_release release;
-      s = client_->Declare(in);
-    }
-    Check(s, "declare");
+    WithoutGil("declare", [&] { return client_->Declare(in); });
     return in.id();
   }
   void Drop(uint64_t id) {
-    Status s;
-    {
-      py::gil_scoped_release release;
-      s = client_->Drop(id);
-    }
-    Check(s, "drop");
+    WithoutGil("drop", [&] { return client_->Drop(id); });
   }
   // Reads the daemon's reports: declares the interests again after a restart or a drop; returns
   // the refusals addressed to this client.
@@ -553,12 +493,7 @@ class PyInterestClient {
     const auto t = Millis(timeout, "query");
     std::vector<uint64_t> keys;
     uint64_t frame = 0;
-    Status s;
-    {
-      py::gil_scoped_release release;
-      s = client_->Query(lo, hi, t, &keys, &frame);
-    }
-    Check(s, "query");
+    WithoutGil("query", [&] { return client_->Query(lo, hi, t, &keys, &frame); });
     return py::make_tuple(Vector(keys.data(), keys.size()), frame);
   }
   uint64_t id() const { return client_->id(); }
@@ -607,12 +542,7 @@ class PyRecording {
   py::object Next() {
     wire::RecordedBatch rec;
     bool end = false;
-    Status s;
-    {
-      py::gil_scoped_release release;
-      s = reader_.Next(&rec, &end);
-    }
-    Check(s, "Recording " + path_);
+    WithoutGil("Recording " + path_, [&] { return reader_.Next(&rec, &end); });
     if (end) return py::none();
     py::dict d;
     d["time_ns"] = rec.time_ns();
