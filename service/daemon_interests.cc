@@ -85,8 +85,8 @@ void Daemon::ServeInterestRequest(std::span<const uint8_t> payload, dds_instance
                                      std::chrono::milliseconds(config_.dds.write_timeout_ms));
         // A subscriber whose reader matches the new writer late still receives the recent parts.
         dds_qset_durability(qos.get(), DDS_DURABILITY_TRANSIENT_LOCAL);
-        // No latency budget: Cyclone's asynchronous write (what a budget turns on) was seen to
-        // lose parts of a stream that then stays quiet (docs/DESIGN.md, "Interests").
+        // No latency budget: with one, Cyclone's asynchronous write can drop parts of a stream
+        // that then stays quiet (docs/DESIGN.md, "Interests").
         const std::string partition = transport::InterestPartition(config_.dds.partition, in.id());
         if (Status st = connection_->CreateWriter(transport::TopicId::kEvents, qos,
                                                   &stream->second.writer, &partition);

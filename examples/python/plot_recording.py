@@ -41,15 +41,20 @@ def main():
                 dtype = batch["insert_lo"].dtype if len(batch["insert_lo"]) else np.float32
                 engine = broadphase.Engine(args.engine, dims=batch["dim"], dtype=dtype)
             base = np.uint64(batch["producer"]) << np.uint64(48)
-            try:
-                engine.erase(base | batch["erase_ids"])
-                engine.insert(base | batch["insert_ids"], batch["insert_lo"], batch["insert_hi"],
-                              category=batch["category"] if len(batch["category"]) else None,
-                              mask=batch["mask"] if len(batch["mask"]) else None,
-                              static=batch["static"] if len(batch["static"]) else None)
-                engine.update(base | batch["update_ids"], batch["update_lo"], batch["update_hi"])
-            except broadphase.RefusedError as e:   # as the daemon: the rest of the batch applies
-                skipped += len(e.indices)
+            calls = (  # as the daemon: erases, inserts, updates; a refused item skips only itself
+                lambda: engine.erase(base | batch["erase_ids"]),
+                lambda: engine.insert(
+                    base | batch["insert_ids"], batch["insert_lo"], batch["insert_hi"],
+                    category=batch["category"] if len(batch["category"]) else None,
+                    mask=batch["mask"] if len(batch["mask"]) else None,
+                    static=batch["static"] if len(batch["static"]) else None),
+                lambda: engine.update(base | batch["update_ids"], batch["update_lo"],
+                                      batch["update_hi"]))
+            for call in calls:
+                try:
+                    call()
+                except broadphase.RefusedError as e:
+                    skipped += len(e.indices)
         if engine is None:
             continue
         c, u = engine.query()

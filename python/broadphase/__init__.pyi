@@ -1,4 +1,4 @@
-from typing import Any, Iterator
+from typing import Any, Iterator, overload
 
 import numpy as np
 import numpy.typing as npt
@@ -42,8 +42,11 @@ class Engine:
     def margin(self) -> float: ...
 
 class Scene:
-    def __init__(self, name: str | None = None, seed: int | None = None, *, n: int = ...,
-                 moving: int = ..., churn: int = ..., dims: int = 3) -> None: ...
+    @overload
+    def __init__(self, name: str, seed: int | None = None) -> None: ...
+    @overload
+    def __init__(self, *, n: int, moving: int, churn: int, dims: int = 3,
+                 seed: int = 12345) -> None: ...
     def initial(self) -> tuple[U64, npt.NDArray[np.float32], npt.NDArray[np.float32]]: ...
     def next_frame(self) -> dict[str, npt.NDArray[Any]]: ...
     @property

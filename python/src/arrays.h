@@ -33,8 +33,16 @@ inline py::array AsArray(const py::handle& obj, const std::string& what) {
   return a;
 }
 
-// The numpy kind letter of an array's dtype: 'i', 'u', 'f', 'b', 'c', 'O', ...
-inline char KindOf(const py::array& a) { return a.dtype().kind(); }
+// The numpy kind letter of an array's dtype: 'i', 'u', 'f', 'b', 'c', 'O', ...; an empty array
+// counts as any kind ('-': a Python [] arrives as float64).
+inline char KindOf(const py::array& a) { return a.size() == 0 ? '-' : a.dtype().kind(); }
+
+// a as a C-contiguous array of T (a copy if it is not one already); numpy's own error (an
+// overflow under np.seterr(over='raise'), say) is raised as it is.
+template <class T>
+py::array_t<T, py::array::c_style | py::array::forcecast> As(const py::array& a) {
+  return py::array_t<T, py::array::c_style | py::array::forcecast>(a);
+}
 
 inline std::string ShapeOf(const py::array& a) {
   std::string s = "(";
@@ -46,6 +54,31 @@ inline std::string ShapeOf(const py::array& a) {
 }
 
 inline std::string DtypeName(const py::array& a) { return py::str(a.dtype()).cast<std::string>(); }
+
+// A Python integer argument in [lo, hi]: TypeError if it is not an integer, ValueError if it is
+// out of range.
+inline uint64_t IntArg(const py::handle& obj, const std::string& what, uint64_t lo, uint64_t hi) {
+  if (!PyLong_Check(obj.ptr()) || PyBool_Check(obj.ptr())) {
+    throw py::type_error(what + " must be an integer, got " + py::repr(obj).cast<std::string>());
+  }
+  int overflow = 0;
+  const long long v = PyLong_AsLongLongAndOverflow(obj.ptr(), &overflow);
+  uint64_t u = 0;
+  bool ok = overflow == 0 && v >= 0;
+  if (ok) {
+    u = static_cast<uint64_t>(v);
+  } else if (overflow > 0) {
+    u = PyLong_AsUnsignedLongLong(obj.ptr());
+    ok = !(u == ~uint64_t{0} && PyErr_Occurred() != nullptr);
+    PyErr_Clear();
+  }
+  if (!ok || u < lo || u > hi) {
+    throw py::value_error(what + " is " + py::repr(obj).cast<std::string>() +
+                          ": expected an integer in [" + std::to_string(lo) + ", " +
+                          std::to_string(hi) + "]");
+  }
+  return u;
+}
 
 // keys as uint64 values: a 1-D integer array (n == -1: any length).
 inline std::vector<uint64_t> Keys(const py::handle& obj, const std::string& what,
@@ -59,22 +92,23 @@ inline std::vector<uint64_t> Keys(const py::handle& obj, const std::string& what
                           std::to_string(a.shape(0)));
   }
   const char kind = KindOf(a);
-  if (kind != 'i' && kind != 'u') {
-    throw py::type_error(what + ": keys must be integers (uint64), got dtype " + DtypeName(a));
+  if (kind != 'i' && kind != 'u' && kind != '-') {
+    throw py::type_error(what + ": expected unsigned 64-bit integers, got dtype " + DtypeName(a));
   }
   std::vector<uint64_t> out(static_cast<size_t>(a.shape(0)));
+  if (out.empty()) return out;
   if (kind == 'i') {
-    auto s = py::array_t<int64_t, py::array::c_style | py::array::forcecast>::ensure(a);
+    auto s = As<int64_t>(a);
     const int64_t* p = s.data();
     for (size_t i = 0; i < out.size(); ++i) {
       if (p[i] < 0) {
         throw py::value_error(what + "[" + std::to_string(i) + "] is " + std::to_string(p[i]) +
-                              ": keys are unsigned 64-bit integers");
+                              ": expected an unsigned 64-bit integer");
       }
       out[i] = static_cast<uint64_t>(p[i]);
     }
   } else {
-    auto s = py::array_t<uint64_t, py::array::c_style | py::array::forcecast>::ensure(a);
+    auto s = As<uint64_t>(a);
     std::copy(s.data(), s.data() + out.size(), out.begin());
   }
   return out;
@@ -97,17 +131,24 @@ inline std::vector<uint8_t> PerItemBool(const py::handle& obj, const std::string
   if (obj.is_none()) return std::vector<uint8_t>(n, 0);
   py::array a = AsArray(obj, what);
   const char kind = KindOf(a);
-  if (kind != 'b' && kind != 'i' && kind != 'u') {
+  if (kind != 'b' && kind != 'i' && kind != 'u' && kind != '-') {
     throw py::type_error(what + ": expected booleans, got dtype " + DtypeName(a));
   }
-  auto s = py::array_t<bool, py::array::c_style | py::array::forcecast>::ensure(a);
-  if (s.ndim() == 0) return std::vector<uint8_t>(n, s.data()[0] ? 1 : 0);
-  if (s.ndim() != 1 || static_cast<size_t>(s.shape(0)) != n) {
+  if (a.ndim() > 1 || (a.ndim() == 1 && static_cast<size_t>(a.shape(0)) != n)) {
     throw py::value_error(what + ": expected " + std::to_string(n) + " flags, got shape " +
                           ShapeOf(a));
   }
   std::vector<uint8_t> out(n);
-  for (size_t i = 0; i < n; ++i) out[i] = s.data()[i] ? 1 : 0;
+  if (a.size() == 0) return out;
+  auto s = As<int64_t>(a);
+  for (size_t i = 0; i < n; ++i) {
+    const int64_t v = s.data()[a.ndim() == 0 ? 0 : i];
+    if (v != 0 && v != 1) {
+      throw py::value_error(what + "[" + std::to_string(i) + "] is " + std::to_string(v) +
+                            ": expected a boolean (or 0 or 1)");
+    }
+    out[i] = static_cast<uint8_t>(v);
+  }
   return out;
 }
 
@@ -117,11 +158,16 @@ template <class T>
 std::vector<T> CoordsOf(const py::handle& obj, const std::string& what, py::ssize_t n, int k,
                         bool single = false) {
   py::array a = AsArray(obj, what);
+  const std::string given = ShapeOf(a);
+  if (!single && n <= 0 && a.ndim() == 1 && a.size() == 0) return {};  // [] for no boxes
   if (single && a.ndim() == 1) a = a.reshape({py::ssize_t{1}, a.shape(0)});
   if (a.ndim() != 2 || a.shape(1) != k || (n >= 0 && a.shape(0) != n)) {
     const std::string rows = n >= 0 ? std::to_string(n) : std::string("n");
-    throw py::value_error(what + ": expected shape (" + (single ? std::string("") : rows + ", ") +
-                          std::to_string(k) + ")" + ", got " + ShapeOf(a));
+    const std::string kk = std::to_string(k);
+    throw py::value_error(
+        what + ": expected shape " +
+        (single ? "(" + kk + ",) or (1, " + kk + ")" : "(" + rows + ", " + kk + ")") + ", got " +
+        given);
   }
   const char kind = KindOf(a);
   const size_t count = static_cast<size_t>(a.shape(0)) * static_cast<size_t>(k);
@@ -135,11 +181,12 @@ std::vector<T> CoordsOf(const py::handle& obj, const std::string& what, py::ssiz
     return s;
   };
   std::vector<T> out(count);
+  if (count == 0) return out;
   if constexpr (std::is_floating_point_v<T>) {
     if (kind != 'f' && kind != 'i' && kind != 'u') {
       throw py::type_error(what + ": coordinates must be real numbers, got dtype " + DtypeName(a));
     }
-    auto s = py::array_t<T, py::array::c_style | py::array::forcecast>::ensure(a);
+    auto s = As<T>(a);
     std::copy(s.data(), s.data() + count, out.begin());
   } else {
     if (kind != 'i' && kind != 'u') {
@@ -148,7 +195,7 @@ std::vector<T> CoordsOf(const py::handle& obj, const std::string& what, py::ssiz
                            DtypeName(a));
     }
     if (kind == 'u') {
-      auto u = py::array_t<uint64_t, py::array::c_style | py::array::forcecast>::ensure(a);
+      auto u = As<uint64_t>(a);
       for (size_t i = 0; i < count; ++i) {
         if (u.data()[i] > static_cast<uint64_t>(std::numeric_limits<T>::max())) {
           throw py::value_error(what + at(i) + " is " + std::to_string(u.data()[i]) +
@@ -156,7 +203,7 @@ std::vector<T> CoordsOf(const py::handle& obj, const std::string& what, py::ssiz
         }
       }
     }
-    auto s = py::array_t<int64_t, py::array::c_style | py::array::forcecast>::ensure(a);
+    auto s = As<int64_t>(a);
     for (size_t i = 0; i < count; ++i) {
       const int64_t v = s.data()[i];
       if (v < std::numeric_limits<T>::lowest() || v > std::numeric_limits<T>::max()) {

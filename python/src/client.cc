@@ -21,7 +21,8 @@
 
 #include "arrays.h"
 #include "config.h"
-#include <google/protobuf/util/json_util.h>
+#include <google/protobuf/descriptor.h>
+#include <google/protobuf/message.h>
 #include <pybind11/stl.h>
 
 #include "bp/client/batch_builder.h"
@@ -43,7 +44,8 @@ constexpr uint64_t kLocalIdLimit = uint64_t{1} << 48;
     case StatusCode::kInvalidArgument:
       throw py::value_error(msg);
     case StatusCode::kNotFound:
-      throw py::key_error(msg);
+      PyErr_SetString(PyExc_LookupError, msg.c_str());
+      throw py::error_already_set();
     case StatusCode::kDeadlineExceeded:
       PyErr_SetString(PyExc_TimeoutError, msg.c_str());
       throw py::error_already_set();
@@ -69,21 +71,67 @@ void WithoutGil(const std::string& what, F&& f) {
 }
 
 std::chrono::milliseconds Millis(double seconds, const std::string& what) {
-  if (!(seconds >= 0) || !std::isfinite(seconds)) {
-    throw py::value_error(what + ": timeout must be finite and >= 0, got " +
-                          std::to_string(seconds));
+  if (!(seconds >= 0)) {
+    throw py::value_error(what + ": timeout must be >= 0, got " + std::to_string(seconds));
   }
-  return std::chrono::milliseconds(static_cast<int64_t>(std::ceil(seconds * 1000.0)));
+  // Longer waits wait kLongestWait (beyond it the library's deadlines would overflow).
+  constexpr double kLongestWait = 1e7;
+  return std::chrono::milliseconds(
+      static_cast<int64_t>(std::ceil(std::min(seconds, kLongestWait) * 1000.0)));
 }
 
-// A protobuf message as a dict (field names as in the schema).
+// A protobuf message as a dict: the schema's field names; integers as ints (64-bit ones too),
+// enums by name, bytes as bytes, repeated fields as lists, a nested message as a dict (None when
+// unset); of a oneof, only the field that is set.
+py::object ToDict(const google::protobuf::Message& msg);
+py::object FieldValue(const google::protobuf::Message& msg,
+                      const google::protobuf::FieldDescriptor* f, int index) {
+  using FD = google::protobuf::FieldDescriptor;
+  const auto* r = msg.GetReflection();
+  const bool rep = index >= 0;
+  switch (f->cpp_type()) {
+    case FD::CPPTYPE_INT32:
+      return py::int_(rep ? r->GetRepeatedInt32(msg, f, index) : r->GetInt32(msg, f));
+    case FD::CPPTYPE_INT64:
+      return py::int_(rep ? r->GetRepeatedInt64(msg, f, index) : r->GetInt64(msg, f));
+    case FD::CPPTYPE_UINT32:
+      return py::int_(rep ? r->GetRepeatedUInt32(msg, f, index) : r->GetUInt32(msg, f));
+    case FD::CPPTYPE_UINT64:
+      return py::int_(rep ? r->GetRepeatedUInt64(msg, f, index) : r->GetUInt64(msg, f));
+    case FD::CPPTYPE_DOUBLE:
+      return py::float_(rep ? r->GetRepeatedDouble(msg, f, index) : r->GetDouble(msg, f));
+    case FD::CPPTYPE_FLOAT:
+      return py::float_(rep ? r->GetRepeatedFloat(msg, f, index) : r->GetFloat(msg, f));
+    case FD::CPPTYPE_BOOL:
+      return py::bool_(rep ? r->GetRepeatedBool(msg, f, index) : r->GetBool(msg, f));
+    case FD::CPPTYPE_ENUM:
+      return py::str((rep ? r->GetRepeatedEnum(msg, f, index) : r->GetEnum(msg, f))->name());
+    case FD::CPPTYPE_STRING: {
+      const std::string v = rep ? r->GetRepeatedString(msg, f, index) : r->GetString(msg, f);
+      if (f->type() == FD::TYPE_BYTES) return py::bytes(v);
+      return py::str(v);
+    }
+    case FD::CPPTYPE_MESSAGE:
+      if (!rep && !r->HasField(msg, f)) return py::none();
+      return ToDict(rep ? r->GetRepeatedMessage(msg, f, index) : r->GetMessage(msg, f));
+  }
+  return py::none();
+}
 py::object ToDict(const google::protobuf::Message& msg) {
-  std::string json;
-  google::protobuf::util::JsonPrintOptions options;
-  options.preserve_proto_field_names = true;
-  options.always_print_primitive_fields = true;
-  (void)google::protobuf::util::MessageToJsonString(msg, &json, options);
-  return py::module_::import("json").attr("loads")(json);
+  const auto* d = msg.GetDescriptor();
+  const auto* r = msg.GetReflection();
+  py::dict out;
+  for (int i = 0; i < d->field_count(); ++i) {
+    const auto* f = d->field(i);
+    if (f->is_repeated()) {
+      py::list items;
+      for (int k = 0; k < r->FieldSize(msg, f); ++k) items.append(FieldValue(msg, f, k));
+      out[py::str(f->name())] = items;
+    } else if (f->containing_oneof() == nullptr || r->HasField(msg, f)) {
+      out[py::str(f->name())] = FieldValue(msg, f, -1);
+    }
+  }
+  return out;
 }
 
 // A flattened pair array (a0, b0, a1, b1, ...) as uint64[m, 2].
@@ -151,11 +199,14 @@ std::shared_ptr<PyConnection> OpenConnection(const py::object& config, const py:
   } else {
     cfg.dds.cyclone_config.clear();  // Cyclone's default unless given
   }
-  if (!domain.is_none()) cfg.dds.domain = domain.cast<uint32_t>();
-  if (!partition.is_none()) cfg.dds.partition = partition.cast<std::string>();
+  if (!domain.is_none()) {
+    cfg.dds.domain = static_cast<uint32_t>(IntArg(domain, "Connection: domain", 0, 232));
+  }
+  if (!partition.is_none()) cfg.dds.partition = py::str(partition);
   if (!cyclone_config.is_none()) cfg.dds.cyclone_config = py::str(cyclone_config);
   auto out = std::make_shared<PyConnection>();
-  out->dims = dims.is_none() ? cfg.engine.dimension : dims.cast<int>();
+  out->dims = dims.is_none() ? cfg.engine.dimension
+                             : static_cast<int>(IntArg(dims, "Connection: dims", 2, 3));
   if (out->dims != 2 && out->dims != 3) {
     throw py::value_error("Connection: dims must be 2 or 3, got " + std::to_string(out->dims));
   }
@@ -173,6 +224,10 @@ std::shared_ptr<PyConnection> OpenConnection(const py::object& config, const py:
       s = transport::ReadTextFile(cfg.dds.cyclone_config, &options.cyclone_xml);
     }
     if (s.ok()) s = transport::Connection::Open(options, &out->connection);
+  }
+  if (s.code() == StatusCode::kNotFound) {
+    PyErr_SetString(PyExc_FileNotFoundError, ("Connection: " + s.ToString()).c_str());
+    throw py::error_already_set();
   }
   Check(s, "Connection");
   return out;
@@ -214,7 +269,8 @@ class PyPublisher {
     wire::UpdateBatch batch;
     batch.set_dim(static_cast<uint32_t>(k));
     batch.set_end_of_frame(end_of_frame);
-    batch.set_frame(frame.is_none() ? next_frame_ : frame.cast<uint64_t>());
+    batch.set_frame(frame.is_none() ? next_frame_
+                                    : IntArg(frame, "publish: frame", 0, ~uint64_t{0}));
     if (!insert_ids.is_none()) {
       const auto ids = LocalIds(insert_ids, "publish: insert_ids");
       Boxes(ids, insert_lo, insert_hi, "publish: insert", batch.mutable_inserts());
@@ -437,8 +493,8 @@ class PyInterestClient {
                    uint64_t category_mask, const py::object& id) {
     const int k = connection_->dims;
     wire::Interest in;
-    in.set_id(id.is_none() ? client::InterestClient::NewInterestId() : id.cast<uint64_t>());
-    if (in.id() == 0) throw py::value_error("declare: id must be nonzero");
+    in.set_id(id.is_none() ? client::InterestClient::NewInterestId()
+                           : IntArg(id, "declare: id", 1, ~uint64_t{0}));
     in.set_dim(static_cast<uint32_t>(k));
     if (!regions_lo.is_none() || !regions_hi.is_none()) {
       if (regions_lo.is_none() || regions_hi.is_none()) {
@@ -624,7 +680,7 @@ void BindClient(py::module_& m) {
       "restate_on_restart the publisher keeps what it published and states it again to a "
       "restarted daemon.")
       .def(py::init<std::shared_ptr<PyConnection>, uint32_t, double, bool, py::object>(),
-           py::arg("connection"), py::arg("producer"), py::kw_only(),
+           py::arg("connection").none(false), py::arg("producer"), py::kw_only(),
            py::arg("write_timeout") = 5.0, py::arg("restate_on_restart") = false,
            py::arg("double") = py::none())
       .def("wait_for_daemon", &PyPublisher::WaitForDaemon, py::arg("timeout") = 10.0,
@@ -660,8 +716,8 @@ void BindClient(py::module_& m) {
       "Receives the daemon's events: EventSubscriber(connection, depth=256, interest=0); with "
       "an interest id, that interest's stream only. poll(timeout) returns the EventParts "
       "received; parts() iterates over them.")
-      .def(py::init<std::shared_ptr<PyConnection>, int32_t, uint64_t>(), py::arg("connection"),
-           py::arg("depth") = 256, py::arg("interest") = 0)
+      .def(py::init<std::shared_ptr<PyConnection>, int32_t, uint64_t>(),
+           py::arg("connection").none(false), py::arg("depth") = 256, py::arg("interest") = 0)
       .def("wait_for_daemon", &PyEventSubscriber::WaitForDaemon, py::arg("timeout") = 10.0)
       .def("poll", &PyEventSubscriber::Poll, py::arg("timeout") = 0.1,
            "The parts that arrive within timeout seconds (possibly none).")
@@ -674,8 +730,8 @@ void BindClient(py::module_& m) {
       "The exact current overlap set (of the world, or of an interest), kept from the events "
       "with snapshots after a late join, a gap or a daemon restart. OverlapView(connection, "
       "depth=256, interest=0); call poll() regularly (it asks for snapshots when needed).")
-      .def(py::init<std::shared_ptr<PyConnection>, int32_t, uint64_t>(), py::arg("connection"),
-           py::arg("depth") = 256, py::arg("interest") = 0)
+      .def(py::init<std::shared_ptr<PyConnection>, int32_t, uint64_t>(),
+           py::arg("connection").none(false), py::arg("depth") = 256, py::arg("interest") = 0)
       .def("wait_for_daemon", &PyOverlapView::WaitForDaemon, py::arg("timeout") = 10.0)
       .def("poll", &PyOverlapView::Poll, py::arg("timeout") = 0.1,
            "Applies what arrives within timeout; returns the parts applied.")
@@ -700,7 +756,7 @@ void BindClient(py::module_& m) {
       m, "StatusSubscriber",
       "The daemon's status reports (health, objects, frame times, rejections, interests) as "
       "dicts with the schema's field names.")
-      .def(py::init<std::shared_ptr<PyConnection>, int32_t>(), py::arg("connection"),
+      .def(py::init<std::shared_ptr<PyConnection>, int32_t>(), py::arg("connection").none(false),
            py::arg("depth") = 16)
       .def("poll", &PyStatusSubscriber::Poll, py::arg("timeout") = 0.1,
            "The reports that arrive within timeout seconds.");
@@ -709,7 +765,7 @@ void BindClient(py::module_& m) {
       m, "InterestClient",
       "Declares interests (only the events one needs) and asks spot queries. Receive an "
       "interest's events with EventSubscriber or OverlapView(connection, interest=id).")
-      .def(py::init<std::shared_ptr<PyConnection>>(), py::arg("connection"))
+      .def(py::init<std::shared_ptr<PyConnection>>(), py::arg("connection").none(false))
       .def("wait_for_daemon", &PyInterestClient::WaitForDaemon, py::arg("timeout") = 10.0)
       .def("declare", &PyInterestClient::Declare, py::kw_only(), py::arg("regions_lo") = py::none(),
            py::arg("regions_hi") = py::none(), py::arg("leave_margin") = 0.0,

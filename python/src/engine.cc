@@ -9,7 +9,9 @@
 #include "engine.h"
 
 #include <algorithm>
+#include <bit>
 #include <cmath>
+#include <limits>
 #include <mutex>
 #include <stdexcept>
 #include <string>
@@ -230,12 +232,14 @@ class EngineOf final : public EngineBase {
   }
 
   size_t Size() const override {
+    py::gil_scoped_release release;  // another thread may hold the engine in a long query
     std::lock_guard lock(mu_);
     return engine_->Size();
   }
   py::dict GetStats() const override {
     Stats s;
     {
+      py::gil_scoped_release release;
       std::lock_guard lock(mu_);
       s = engine_->GetStats();
     }
@@ -265,8 +269,31 @@ class EngineOf final : public EngineBase {
   mutable std::mutex mu_;
 };
 
+// A keyword option's value as T, in [lo, hi]: TypeError if it is not a number of T's kind,
+// ValueError if it is out of range.
+template <class T>
+T Option(const std::string& algo, const std::string& name, const py::handle& value, double lo,
+         double hi) {
+  const std::string where = "Engine: " + algo + " option " + name;
+  const bool integral = std::is_integral_v<T>;
+  if (PyBool_Check(value.ptr()) ||
+      !(integral ? PyLong_Check(value.ptr()) : PyNumber_Check(value.ptr()))) {
+    throw py::type_error(where + " must be " + (integral ? "an integer" : "a number") + ", got " +
+                         py::repr(value).cast<std::string>());
+  }
+  const double v = PyFloat_AsDouble(value.ptr());  // an int too (OverflowError beyond doubles)
+  if (v == -1.0 && PyErr_Occurred() != nullptr) throw py::error_already_set();
+  if (!(v >= lo && v <= hi)) {
+    throw py::value_error(where + " is " + py::repr(value).cast<std::string>() +
+                          ": expected a value in [" + py::repr(py::float_(lo)).cast<std::string>() +
+                          ", " + py::repr(py::float_(hi)).cast<std::string>() + "]");
+  }
+  return static_cast<T>(v);
+}
+
 // Sets spec's options of its algorithm from keyword arguments; TypeError for a name the
-// algorithm does not take.
+// algorithm does not take or a value of the wrong kind, ValueError for one out of range (the
+// ranges the engines accept without adjusting the value).
 void ApplyOptions(EngineSpec* spec, const py::dict& options) {
   const std::string& algo = spec->algorithm;
   const bool grid = algo.rfind("grid_", 0) == 0;
@@ -277,6 +304,7 @@ void ApplyOptions(EngineSpec* spec, const py::dict& options) {
   }
   if (algo == "batch_sap" || algo == "grid_batch_sap") known.push_back("global_sort_fraction");
   if (algo == "dynamic_octree") known = {"max_objects_per_node", "max_depth"};
+  constexpr double kMax32 = 4294967295.0;
   for (const auto& [key, value] : options) {
     const std::string name = py::str(key);
     if (std::find(known.begin(), known.end(), name) == known.end()) {
@@ -287,21 +315,30 @@ void ApplyOptions(EngineSpec* spec, const py::dict& options) {
           (known.empty() ? std::string(" (it takes none)") : " (it takes " + list + ")"));
     }
     const auto set_grid = [&](auto& g) {
-      if (name == "cell_size") g.cell_size = value.cast<double>();
-      if (name == "objects_per_cell") g.objects_per_cell = value.cast<double>();
-      if (name == "max_cells_per_object") g.max_cells_per_object = value.cast<uint32_t>();
-      if (name == "threads") g.threads = value.cast<unsigned>();
+      if (name == "cell_size") g.cell_size = Option<double>(algo, name, value, 0, 1e300);
+      if (name == "objects_per_cell")
+        g.objects_per_cell = Option<double>(algo, name, value, 1, 1e9);
+      if (name == "max_cells_per_object")
+        g.max_cells_per_object = Option<uint32_t>(algo, name, value, 1, 1e6);
+      if (name == "threads") g.threads = Option<unsigned>(algo, name, value, 1, 256);
     };
     const auto set_sap = [&](SegmentedSapOptions& o) {
-      if (name == "chunk_capacity") o.chunk_capacity = value.cast<uint32_t>();
-      if (name == "global_sort_fraction") o.global_sort_fraction = value.cast<double>();
-      if (name == "bulk_load_min") o.bulk_load_min = value.cast<uint32_t>();
+      if (name == "chunk_capacity") {
+        o.chunk_capacity = Option<uint32_t>(algo, name, value, 4, 4096);
+        if (!std::has_single_bit(o.chunk_capacity)) {
+          throw py::value_error("Engine: " + algo + " option chunk_capacity is " +
+                                std::to_string(o.chunk_capacity) + ": expected a power of two");
+        }
+      }
+      if (name == "global_sort_fraction")
+        o.global_sort_fraction = Option<double>(algo, name, value, 0, 1);
+      if (name == "bulk_load_min") o.bulk_load_min = Option<uint32_t>(algo, name, value, 0, kMax32);
     };
     if (algo == "grid_dense") set_grid(spec->grid_dense);
     if (algo == "grid_batch_sap") {
       set_grid(spec->grid_batch_sap);
       if (name == "global_sort_fraction")
-        spec->grid_batch_sap.cell.global_sort_fraction = value.cast<double>();
+        spec->grid_batch_sap.cell.global_sort_fraction = Option<double>(algo, name, value, 0, 1);
     }
     if (algo == "grid_segmented_sap") {
       set_grid(spec->grid_segmented_sap);
@@ -309,17 +346,21 @@ void ApplyOptions(EngineSpec* spec, const py::dict& options) {
     }
     if (algo == "segmented_sap") set_sap(spec->segmented_sap);
     if (algo == "batch_sap" && name == "global_sort_fraction")
-      spec->batch_sap.global_sort_fraction = value.cast<double>();
+      spec->batch_sap.global_sort_fraction = Option<double>(algo, name, value, 0, 1);
     if (algo == "dynamic_octree") {
       if (name == "max_objects_per_node")
-        spec->dynamic_octree.max_objects_per_node = value.cast<uint32_t>();
-      if (name == "max_depth") spec->dynamic_octree.max_depth = value.cast<uint32_t>();
+        spec->dynamic_octree.max_objects_per_node = Option<uint32_t>(algo, name, value, 1, 1e6);
+      if (name == "max_depth")
+        spec->dynamic_octree.max_depth = Option<uint32_t>(algo, name, value, 1, 64);
     }
   }
 }
 
 // "float32", "float64" or "int32" for any spelling numpy accepts (np.float32, "f4", float, ...).
 std::string CanonicalDtype(const py::handle& dtype) {
+  if (dtype.is_none()) {
+    throw py::type_error("Engine: dtype None is not supported (float32, float64 or int32)");
+  }
   py::dtype d;
   try {
     d = py::dtype::from_args(py::reinterpret_borrow<py::object>(dtype));
@@ -337,7 +378,8 @@ std::string CanonicalDtype(const py::handle& dtype) {
 template <int K, class T>
 std::unique_ptr<EngineBase> Make(const EngineSpec& spec, double margin) {
   if constexpr (std::is_integral_v<T>) {
-    if (margin != static_cast<double>(static_cast<T>(margin))) {
+    if (margin > static_cast<double>(std::numeric_limits<T>::max()) ||
+        margin != std::floor(margin)) {
       throw py::value_error("Engine: an int32 engine takes an integer margin, got " +
                             std::to_string(margin));
     }

@@ -91,7 +91,7 @@ default seed the golden values (``golden(name)``) hold.
                                      ")");
              }
              workload::SceneParams p = g->Params();
-             if (!seed.is_none()) p.seed = seed.cast<uint64_t>();
+             if (!seed.is_none()) p.seed = IntArg(seed, "Scene: seed", 0, ~uint64_t{0});
              return new PyScene(p);
            }),
            py::arg("name"), py::arg("seed") = py::none(),
@@ -159,7 +159,14 @@ default seed the golden values (``golden(name)``) hold.
         }
         std::vector<uint64_t> flat = Keys(a.reshape({a.shape(0) * 2}), "set_hash: pairs");
         workload::SetHash h;
-        for (size_t i = 0; i + 1 < flat.size(); i += 2) h.Collide(flat[i], flat[i + 1]);
+        for (size_t i = 0; i + 1 < flat.size(); i += 2) {
+          if (flat[i] >> 32 != 0 || flat[i + 1] >> 32 != 0) {
+            throw py::value_error("set_hash: pair " + std::to_string(i / 2) +
+                                  " has an id of 2**32 or more (the set hash packs two ids "
+                                  "below 2**32)");
+          }
+          h.Collide(flat[i], flat[i + 1]);
+        }
         return h.value();
       },
       py::arg("pairs"),

@@ -129,6 +129,7 @@ def test_round_trip_matches_the_oracle_frame_by_frame(deployment):
     while not reports and time.monotonic() < deadline:
         reports = status.poll(0.5)
     assert reports and reports[-1]["dim"] == 3 and reports[-1]["engine"] == "grid_dense"
+    assert isinstance(reports[-1]["objects"], int)
     # Bad input: refused here, before anything is sent.
     with pytest.raises(ValueError, match="below 2\\*\\*48"):
         pub.publish(erase_ids=[2**50])
@@ -178,7 +179,7 @@ def test_interest_stream_and_refusal(deployment):
     while not refusals and time.monotonic() < deadline:
         refusals = client.maintain()
         time.sleep(0.1)
-    assert refusals and int(refusals[0]["interest"]) == bad
+    assert refusals and refusals[0]["interest"] == bad
     client.drop(interest)
 
 
@@ -233,3 +234,16 @@ def test_examples_run(deployment):
                          env=env)
     assert run.returncode == 0, run.stderr
     assert os.path.getsize(png) > 0 and "frames" in run.stdout
+
+
+def test_arguments_are_checked_before_anything_is_joined():
+    with pytest.raises(TypeError):
+        broadphase.Publisher(None, 3)
+    with pytest.raises(TypeError):
+        broadphase.EventSubscriber(None)
+    with pytest.raises(ValueError, match="domain"):
+        broadphase.Connection(domain=-1)
+    with pytest.raises(FileNotFoundError):
+        broadphase.Connection("/nonexistent/broadphased.yaml")
+    with pytest.raises(FileNotFoundError):
+        broadphase.Connection(domain=DOMAIN, cyclone_config="/nonexistent/cyclone.xml")
