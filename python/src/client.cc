@@ -21,6 +21,7 @@
 
 #include "arrays.h"
 #include "config.h"
+#include "engine_host.h"
 #include <google/protobuf/descriptor.h>
 #include <google/protobuf/message.h>
 #include <pybind11/stl.h>
@@ -35,8 +36,6 @@
 
 namespace bp::python {
 namespace {
-
-constexpr uint64_t kLocalIdLimit = uint64_t{1} << 48;
 
 [[noreturn]] void Throw(const Status& s, const std::string& what) {
   const std::string msg = what + ": " + s.ToString();
@@ -321,7 +320,7 @@ class PyPublisher {
   static std::vector<uint64_t> LocalIds(const py::object& obj, const std::string& what) {
     std::vector<uint64_t> ids = Keys(obj, what);
     for (size_t i = 0; i < ids.size(); ++i) {
-      if (ids[i] >= kLocalIdLimit) {
+      if (ids[i] >= service::kLocalIdLimit) {
         throw py::value_error(what + "[" + std::to_string(i) + "] is " + std::to_string(ids[i]) +
                               ": producer-local ids are below 2**48");
       }

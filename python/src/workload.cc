@@ -14,13 +14,6 @@
 namespace bp::python {
 namespace {
 
-const workload::GoldenScenario* FindGolden(const std::string& name) {
-  for (const auto& g : workload::kGoldenScenarios) {
-    if (g.name == name) return &g;
-  }
-  return nullptr;
-}
-
 std::string GoldenNames() {
   std::string s;
   for (const auto& g : workload::kGoldenScenarios)
@@ -85,7 +78,7 @@ default seed the golden values (``golden(name)``) hold.
                                           # insert_keys/lo/hi (apply in that order)
 )doc")
       .def(py::init([](const std::string& name, py::object seed) {
-             const auto* g = FindGolden(name);
+             const auto* g = workload::FindGolden(name);
              if (g == nullptr) {
                throw py::value_error("Scene: no scenario named '" + name + "' (" + GoldenNames() +
                                      ")");
@@ -127,7 +120,7 @@ default seed the golden values (``golden(name)``) hold.
   m.def(
       "golden",
       [](const std::string& name) {
-        const auto* g = FindGolden(name);
+        const auto* g = workload::FindGolden(name);
         if (g == nullptr) {
           throw py::value_error("golden: no scenario named '" + name + "' (" + GoldenNames() + ")");
         }
