@@ -166,9 +166,10 @@ int Run(const Options& o) {
   if (!o.quiet) {
     std::fprintf(stderr,
                  "bullet_world: %u bodies poured over %u steps into a %.0f m world, then %u "
-                 "spawned and removed per step; %u steps at %.0f Hz; producer %u\n",
-                 o.world.bodies, o.world.fill_steps, world.side(), o.world.stream, o.steps,
-                 o.rate_hz, o.producer);
+                 "spawned per step, each removed %u steps later; %u steps at %.0f Hz; producer "
+                 "%u\n",
+                 o.world.bodies, o.world.fill_steps, world.side(), o.world.stream, o.world.lifetime,
+                 o.steps, o.rate_hz, o.producer);
   }
   std::map<uint64_t, StepRow> rows;  // steps whose events are not compared yet
   std::vector<double> latency, step_ms, broadphase_ms, moved, events;
@@ -341,8 +342,10 @@ int main(int argc, char** argv) {
   app.add_option("--fill-steps", o.world.fill_steps, "steps over which the bodies are poured in")
       ->check(CLI::Range(1u, 100000u));
   app.add_option("--stream", o.world.stream,
-                 "bodies spawned, and oldest removed, per step once full")
+                 "bodies spawned from the spouts per step once the pour is done")
       ->check(CLI::Range(0u, 100000u));
+  app.add_option("--lifetime", o.world.lifetime, "steps a streamed body lives before removal")
+      ->check(CLI::Range(1u, 100000000u));
   app.add_option("--seed", o.world.seed, "seeds sizes, shapes and spawn order");
   app.add_option("--solver-iterations", o.world.solver_iterations, "Bullet's solver iterations")
       ->check(CLI::Range(1, 1000));

@@ -3,6 +3,7 @@
 #include <algorithm>
 #include <chrono>
 #include <cmath>
+#include <unordered_set>
 #include <utility>
 
 #include <btBulletDynamicsCommon.h>
@@ -82,6 +83,7 @@ struct BulletWorld::Body {
   uint64_t id = 0;
   bool is_static = false;
   bool sent = false;  // the daemon has the body (its insert was listed)
+  uint64_t born = 0;  // the step that spawned it
   BodyBox last;       // the box last listed
 };
 
@@ -108,10 +110,12 @@ BulletWorld::BulletWorld(const WorldOptions& options)
     }
   }
 
-  // About 10 bodies per square metre once poured in: piles a few bodies deep.
-  side_ = std::max(10.0, std::sqrt(static_cast<double>(options_.bodies) / 10.0));
+  // About 2 bodies per square metre once poured in, in bins of 4 m: heaps a body or two deep,
+  // in islands small enough to fall asleep within seconds (one moving body keeps its whole
+  // island awake).
+  side_ = std::max(10.0, std::sqrt(static_cast<double>(options_.bodies) / 2.0));
   const auto half = static_cast<float>(side_ / 2);
-  const int bins = std::max(1, static_cast<int>(std::lround(side_ / 8.0)));
+  const int bins = std::max(1, static_cast<int>(std::lround(side_ / 4.0)));
   const float bin = static_cast<float>(side_) / static_cast<float>(bins);
   AddStatic({0, -0.5f, 0}, {half + 1, 0.5f, half + 1});  // the ground
   for (float sign : {-1.0f, 1.0f}) {                     // outer walls, high enough to hold all
@@ -134,17 +138,15 @@ BulletWorld::BulletWorld(const WorldOptions& options)
                                          static_cast<uint32_t>(per_side * per_side) - 1) /
                                         static_cast<uint32_t>(per_side * per_side)));
   AddCells(0, 0, per_side, fill_layers, 7, &fill_cells_);
-  // The stream: spouts of 3 x 3 cells above bins spread over the world, each fed at most 4
-  // bodies a step, in as many layers as keep each cell free for kCellReuseSteps steps.
+  // The stream: spouts of 6 x 6 cells (three bins a side) along the diagonal, each fed at most
+  // 4 bodies a step, in as many layers as keep each cell free for kCellReuseSteps steps.
   if (options_.stream > 0) {
-    const uint32_t spouts =
-        std::min<uint32_t>(static_cast<uint32_t>(bins * bins), (options_.stream + 3) / 4);
-    const uint32_t layers = (kCellReuseSteps * options_.stream + spouts * 9 - 1) / (spouts * 9);
+    const uint32_t spouts = (options_.stream + 3) / 4;
+    const uint32_t layers = (kCellReuseSteps * options_.stream + spouts * 36 - 1) / (spouts * 36);
     for (uint32_t s = 0; s < spouts; ++s) {
-      const uint32_t b = s * static_cast<uint32_t>(bins * bins) / spouts;
-      const float x = -half + bin * (0.5f + static_cast<float>(b % static_cast<uint32_t>(bins)));
-      const float z = -half + bin * (0.5f + static_cast<float>(b / static_cast<uint32_t>(bins)));
-      AddCells(x, z, 3, static_cast<int>(layers), 8, &spout_cells_);
+      const float at = -half + static_cast<float>(side_) * (static_cast<float>(s) + 0.5f) /
+                                   static_cast<float>(spouts);
+      AddCells(at, at, 6, static_cast<int>(layers), 8, &spout_cells_);
     }
   }
   std::shuffle(fill_cells_.begin(), fill_cells_.end(), random_);
@@ -155,6 +157,7 @@ BulletWorld::~BulletWorld() {
   // Bullet's world refers to its bodies until they are removed from it.
   for (auto& b : statics_) world_->removeRigidBody(b->rigid.get());
   for (auto& b : dynamics_) world_->removeRigidBody(b->rigid.get());
+  for (auto& b : streamed_) world_->removeRigidBody(b->rigid.get());
 }
 
 void BulletWorld::AddStatic(const std::array<float, 3>& center, const std::array<float, 3>& half) {
@@ -174,7 +177,7 @@ void BulletWorld::AddStatic(const std::array<float, 3>& center, const std::array
   statics_.push_back(std::move(body));
 }
 
-void BulletWorld::Spawn(const std::array<float, 3>& at) {
+void BulletWorld::Spawn(const std::array<float, 3>& at, bool streamed) {
   std::uniform_real_distribution<float> unit(0, 1);
   // Half spheres, half boxes (any of the box shapes), turned at random.
   const size_t shape_index = unit(random_) < 0.5f
@@ -197,13 +200,19 @@ void BulletWorld::Spawn(const std::array<float, 3>& at) {
   info.m_startWorldTransform = pose;
   info.m_friction = 0.6f;
   info.m_restitution = 0.1f;
+  // Rolling friction and damping let spheres and piles come to rest (and fall asleep).
+  info.m_rollingFriction = 0.1f;
+  info.m_spinningFriction = 0.1f;
+  info.m_linearDamping = 0.1f;
+  info.m_angularDamping = 0.5f;
   auto body = std::make_unique<Body>();
   body->rigid = std::make_unique<btRigidBody>(info);
   body->rigid->setLinearVelocity(btVector3(unit(random_) - 0.5f, -4, unit(random_) - 0.5f));
   body->id = next_id_++;
+  body->born = step_;
   body->rigid->setUserPointer(body.get());
   world_->addRigidBody(body->rigid.get());
-  dynamics_.push_back(std::move(body));
+  (streamed ? streamed_ : dynamics_).push_back(std::move(body));
 }
 
 void BulletWorld::Remove(std::unique_ptr<Body> body) {
@@ -213,34 +222,57 @@ void BulletWorld::Remove(std::unique_ptr<Body> body) {
 
 StepStats BulletWorld::Step() {
   StepStats stats;
+  std::vector<std::unique_ptr<Body>> doomed;
+  ++step_;
   // Bodies that left the world over a wall's top (rare) fall for ever: removed.
-  for (auto it = dynamics_.begin(); it != dynamics_.end();) {
-    if ((*it)->rigid->getWorldTransform().getOrigin().y() < -20) {
-      Remove(std::move(*it));
-      it = dynamics_.erase(it);
-      ++stats.removed;
-    } else {
-      ++it;
+  for (auto* bodies : {&dynamics_, &streamed_}) {
+    for (auto it = bodies->begin(); it != bodies->end();) {
+      if ((*it)->rigid->getWorldTransform().getOrigin().y() < -20) {
+        doomed.push_back(std::move(*it));
+        it = bodies->erase(it);
+      } else {
+        ++it;
+      }
     }
+  }
+  while (!streamed_.empty() && streamed_.front()->born + options_.lifetime <= step_) {
+    doomed.push_back(std::move(streamed_.front()));
+    streamed_.pop_front();
   }
   const uint32_t fill_rate =
       (options_.bodies + std::max(1u, options_.fill_steps) - 1) / std::max(1u, options_.fill_steps);
+  uint32_t spawn = 0;
+  bool streamed = false;
   if (poured_ < options_.bodies) {
-    for (uint32_t i = 0; i < fill_rate && poured_ < options_.bodies; ++i, ++poured_) {
-      Spawn(fill_cells_[next_fill_++ % fill_cells_.size()]);
-      ++stats.spawned;
+    spawn = std::min(fill_rate, options_.bodies - poured_);
+    poured_ += spawn;
+  } else {
+    spawn = options_.stream;
+    streamed = true;
+  }
+  if (!doomed.empty()) {
+    // Bullet leaves the bodies that rested on a removed one asleep, in the air: wake those in
+    // contact with it, as a simulator that removes bodies does.
+    std::unordered_set<const btCollisionObject*> gone;
+    for (const auto& b : doomed) gone.insert(b->rigid.get());
+    for (int i = 0; i < dispatcher_->getNumManifolds(); ++i) {
+      const btPersistentManifold* m = dispatcher_->getManifoldByIndexInternal(i);
+      const bool first = gone.count(m->getBody0()) != 0, second = gone.count(m->getBody1()) != 0;
+      if (first != second) {
+        (first ? m->getBody1() : m->getBody0())->activate();
+      }
     }
-  } else if (options_.stream > 0) {
-    while (!dynamics_.empty() && dynamics_.size() + options_.stream > options_.bodies) {
-      Remove(std::move(dynamics_.front()));
-      dynamics_.pop_front();
-      ++stats.removed;
-    }
-    for (uint32_t i = 0; i < options_.stream; ++i) {
-      Spawn(spout_cells_[next_spout_++ % spout_cells_.size()]);
-      ++stats.spawned;
+    stats.removed = static_cast<uint32_t>(doomed.size());
+    for (auto& b : doomed) Remove(std::move(b));
+  }
+  for (uint32_t i = 0; i < spawn; ++i) {
+    if (streamed) {
+      Spawn(spout_cells_[next_spout_++ % spout_cells_.size()], true);
+    } else {
+      Spawn(fill_cells_[next_fill_++ % fill_cells_.size()], false);
     }
   }
+  stats.spawned = spawn;
   const auto start = Clock::now();
   world_->stepSimulation(kStep, 0);  // one step of exactly kStep
   stats.step_ms = MsSince(start);
@@ -251,8 +283,10 @@ StepStats BulletWorld::Step() {
 void BulletWorld::Clear() {
   for (auto& b : statics_) Remove(std::move(b));
   for (auto& b : dynamics_) Remove(std::move(b));
+  for (auto& b : streamed_) Remove(std::move(b));
   statics_.clear();
   dynamics_.clear();
+  streamed_.clear();
 }
 
 void BulletWorld::TakeChanges(WorldChanges* out) {
@@ -274,6 +308,7 @@ void BulletWorld::TakeChanges(WorldChanges* out) {
   };
   for (auto& b : statics_) list(*b);
   for (auto& b : dynamics_) list(*b);
+  for (auto& b : streamed_) list(*b);
 }
 
 void BulletWorld::ExactPairs(std::vector<uint64_t>* out) const {
@@ -298,8 +333,9 @@ void BulletWorld::ExactPairs(std::vector<uint64_t>* out) const {
 }
 
 size_t BulletWorld::awake() const {
-  return static_cast<size_t>(std::count_if(dynamics_.begin(), dynamics_.end(),
-                                           [](const auto& b) { return b->rigid->isActive(); }));
+  auto awake = [](const auto& b) { return b->rigid->isActive(); };
+  return static_cast<size_t>(std::count_if(dynamics_.begin(), dynamics_.end(), awake) +
+                             std::count_if(streamed_.begin(), streamed_.end(), awake));
 }
 
 }  // namespace bp::examples

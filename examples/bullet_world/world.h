@@ -1,7 +1,8 @@
 // A Bullet rigid-body world, as a simulator beside broadphased runs one: static ground and the
 // walls of a grid of bins, then boxes and spheres of mixed sizes poured into the bins, then a
-// steady stream of new bodies from spouts above the bins while the oldest bodies are removed.
-// Bodies that come to rest fall asleep (Bullet's deactivation) and keep their boxes.
+// steady stream of new bodies from spouts above a few bins, each streamed body removed a while
+// after it was spawned. Bodies that come to rest fall asleep (Bullet's deactivation) and keep
+// their boxes: once the pour has settled, most of the world rests and the spouts' bins move.
 //
 // Every body has a producer-local id that is never reused. After each Step:
 // - TakeChanges lists what changed since the previous call as the daemon must see it: inserts
@@ -35,12 +36,14 @@ class btSequentialImpulseConstraintSolver;
 namespace bp::examples {
 
 struct WorldOptions {
-  /// Dynamic bodies the world holds once poured in (the stream keeps the count).
+  /// Dynamic bodies poured in at the start.
   uint32_t bodies = 5000;
-  /// Steps over which the initial bodies are poured in.
+  /// Steps over which they are poured in.
   uint32_t fill_steps = 120;
-  /// Bodies spawned, and oldest removed, per step once the world is full (0: none).
+  /// Bodies spawned from the spouts per step once the pour is done (0: none).
   uint32_t stream = 4;
+  /// Steps a streamed body lives before it is removed.
+  uint32_t lifetime = 180;
   /// Seeds the sizes, shapes and spawn order (Bullet itself is deterministic).
   uint64_t seed = 1;
   /// Bullet's constraint solver iterations per step.
@@ -84,7 +87,7 @@ class BulletWorld {
   /// The overlapping pairs after the last Step, each as (a << 32 | b) with ids a < b, sorted.
   void ExactPairs(std::vector<uint64_t>* out) const;
   /// Bodies in the world, static geometry included.
-  size_t bodies() const { return statics_.size() + dynamics_.size(); }
+  size_t bodies() const { return statics_.size() + dynamics_.size() + streamed_.size(); }
   /// Dynamic bodies awake (not deactivated) after the last Step.
   size_t awake() const;
   /// The world's extent on x and z (the ground is y = 0, up is +y).
@@ -94,7 +97,7 @@ class BulletWorld {
   struct Body;
   struct Shape;
   void AddStatic(const std::array<float, 3>& center, const std::array<float, 3>& half);
-  void Spawn(const std::array<float, 3>& at);
+  void Spawn(const std::array<float, 3>& at, bool streamed);
   void Remove(std::unique_ptr<Body> body);
 
   WorldOptions options_;
@@ -107,7 +110,9 @@ class BulletWorld {
   std::unique_ptr<btDiscreteDynamicsWorld> world_;
   std::vector<std::unique_ptr<btCollisionShape>> shapes_;
   std::vector<std::unique_ptr<Body>> statics_;
-  std::deque<std::unique_ptr<Body>> dynamics_;  // oldest first
+  std::deque<std::unique_ptr<Body>> dynamics_;  // poured in
+  std::deque<std::unique_ptr<Body>> streamed_;  // from the spouts, oldest first
+  uint64_t step_ = 0;
   std::vector<std::array<float, 3>> fill_cells_, spout_cells_;
   size_t next_fill_ = 0, next_spout_ = 0;
   uint32_t poured_ = 0;
