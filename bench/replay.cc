@@ -3,12 +3,14 @@
 // beside bpbench's synthetic scenes. Frames close on end_of_frame batches, as in the daemon's
 // default mode; a batch applies its erases, then its inserts, then its updates, as the daemon
 // does. One JSON line per engine and peer on stdout: median, mean, p90 and max frame
-// milliseconds, pairs and events, and the hash chain of the overlap set over all frames, which
-// must agree with the first line's (every engine and peer found the same pairs at every frame).
+// milliseconds, the most pairs after a frame, events, and the hash chain of the overlap set over
+// all frames, which must agree with the first line's (every engine and peer found the same pairs at
+// every frame).
 //
 //   bpreplay bullet.rec                              grid_dense, grid_segmented_sap,
 //                                                    segmented_sap, dynamic_octree
 //   bpreplay bullet.rec -e grid_dense,brute_force --peers all -r 3
+//   bpreplay bullet.rec --window 601:900       also the median and p90 of frames 601 to 900
 //
 // Peers see every object as a user of the library would give it (they have no static flag);
 // pairs of two static objects, which our engines never report, are dropped from their sets
@@ -175,7 +177,7 @@ bool Load(const std::string& path, Stream* out) {
 // What one engine's or peer's runs measured.
 struct Run {
   std::vector<double> frame_ms, run_medians;
-  uint64_t pairs = 0, collides = 0, uncollides = 0, chain = 0;
+  uint64_t pairs_max = 0, collides = 0, uncollides = 0, chain = 0;  // pairs_max: after any frame
 };
 
 bool Overlap(const PeerBox& a, const PeerBox& b) {
@@ -261,6 +263,7 @@ Run RunEngine(const std::string& algorithm, unsigned threads, const Stream& stre
       engine->Query(sink);
       run.push_back(MsSince(start));
       chain.AddFrame(sink.set().value());
+      r.pairs_max = std::max(r.pairs_max, sink.set().pairs());
       if (progress && (f % 20 == 0 || f + 1 == frames.size())) {
         std::fprintf(stderr, "\r%-24s repeat %d/%d frame %zu/%zu", algorithm.c_str(), rep + 1,
                      repeats, f + 1, frames.size());
@@ -268,7 +271,6 @@ Run RunEngine(const std::string& algorithm, unsigned threads, const Stream& stre
     }
     r.frame_ms.insert(r.frame_ms.end(), run.begin(), run.end());
     r.run_medians.push_back(Quantile(run, 0.5));
-    r.pairs = sink.set().pairs();
     r.collides = sink.collides;
     r.uncollides = sink.uncollides;
     r.chain = chain.value();
@@ -318,6 +320,7 @@ Run RunPeer(const bp::bench::PeerInfo& info, const Stream& stream, int repeats, 
       uint64_t set_hash = 0;
       for (uint64_t k : pairs) set_hash += bp::workload::PairHash(k);
       chain.AddFrame(set_hash);
+      r.pairs_max = std::max<uint64_t>(r.pairs_max, pairs.size());
       diff.clear();
       std::set_difference(pairs.begin(), pairs.end(), previous.begin(), previous.end(),
                           std::back_inserter(diff));
@@ -333,30 +336,61 @@ Run RunPeer(const bp::bench::PeerInfo& info, const Stream& stream, int repeats, 
     }
     r.frame_ms.insert(r.frame_ms.end(), run.begin(), run.end());
     r.run_medians.push_back(Quantile(run, 0.5));
-    r.pairs = pairs.size();
     r.chain = chain.value();
   }
   if (progress) std::fprintf(stderr, "\r%-80s\r", "");
   return r;
 }
 
+// Frames first..last (1-based, inclusive) of every repeat: a part of the stream on its own (the
+// settled end of a simulation, say).
+struct Window {
+  size_t first = 0, last = 0;  // 0: none
+};
+
+// The median over repeats of the window's median, and the window's p90 over all repeats.
+void WindowStats(const Run& r, size_t frames, const Window& w, double* out_median,
+                 double* out_p90) {
+  std::vector<double> medians, all;
+  for (size_t start = 0; start + frames <= r.frame_ms.size(); start += frames) {
+    std::vector<double> part(r.frame_ms.begin() + static_cast<std::ptrdiff_t>(start + w.first - 1),
+                             r.frame_ms.begin() + static_cast<std::ptrdiff_t>(start + w.last));
+    medians.push_back(Quantile(part, 0.5));
+    all.insert(all.end(), part.begin(), part.end());
+  }
+  *out_median = Quantile(medians, 0.5);
+  *out_p90 = Quantile(all, 0.9);
+}
+
 void Print(const std::string& label, const std::string& name, const std::string& library,
-           const Stream& s, int repeats, const Run& r, const Run& first) {
+           const Stream& s, int repeats, const Run& r, const Run& first, const Window& w) {
   double total = 0;
   for (double ms : r.frame_ms) total += ms;
   const double median = Quantile(r.run_medians, 0.5);
+  std::string window;
+  if (w.first != 0) {
+    double wm = 0, wp = 0, fm = 0, fp = 0;
+    WindowStats(r, s.frames.size(), w, &wm, &wp);
+    WindowStats(first, s.frames.size(), w, &fm, &fp);
+    char buf[200];
+    std::snprintf(buf, sizeof buf,
+                  "\"window\":[%zu,%zu],\"window_median_ms\":%.4f,\"window_p90_ms\":%.4f,"
+                  "\"window_vs_first\":%.3f,",
+                  w.first, w.last, wm, wp, wm / std::max(1e-9, fm));
+    window = buf;
+  }
   std::printf(
       "{\"recording\":\"%s\",\"engine\":\"%s\",%s\"frames\":%zu,\"max_objects\":%zu,"
-      "\"repeats\":%d,\"median_ms\":%.4f,\"mean_ms\":%.4f,\"p90_ms\":%.4f,\"max_ms\":%.4f,"
-      "\"vs_first\":%.3f,\"pairs\":%" PRIu64 ",\"collides\":%" PRIu64 ",\"uncollides\":%" PRIu64
+      "\"repeats\":%d,%s\"median_ms\":%.4f,\"mean_ms\":%.4f,\"p90_ms\":%.4f,\"max_ms\":%.4f,"
+      "\"vs_first\":%.3f,\"pairs_max\":%" PRIu64 ",\"collides\":%" PRIu64 ",\"uncollides\":%" PRIu64
       ",\"chain\":\"%016" PRIx64 "\",\"agrees\":%s,\"skipped_items\":%" PRIu64 "}\n",
       label.c_str(), name.c_str(),
       library.empty() ? "" : ("\"library\":\"" + library + "\",").c_str(), s.frames.size(),
-      s.max_live, repeats, median,
+      s.max_live, repeats, window.c_str(), median,
       total / static_cast<double>(std::max<size_t>(1, r.frame_ms.size())),
       Quantile(r.frame_ms, 0.9), Quantile(r.frame_ms, 1.0),
-      median / std::max(1e-9, Quantile(first.run_medians, 0.5)), r.pairs, r.collides, r.uncollides,
-      r.chain, r.chain == first.chain ? "true" : "false", s.skipped_items);
+      median / std::max(1e-9, Quantile(first.run_medians, 0.5)), r.pairs_max, r.collides,
+      r.uncollides, r.chain, r.chain == first.chain ? "true" : "false", s.skipped_items);
   std::fflush(stdout);
 }
 
@@ -383,7 +417,11 @@ int main(int argc, char** argv) {
   app.add_option("--repeats,-r", repeats, "runs of the whole stream per engine")
       ->check(CLI::Range(1, 1000));
   app.add_option("--label", label, "the recording's name in the output (default: the file's)");
+  std::string window_arg;
+  app.add_option("--window", window_arg,
+                 "FIRST:LAST: also report the median and p90 of these frames (1-based)");
   CLI11_PARSE(app, argc, argv);
+  Window window;
   if (label.empty()) label = file.substr(file.find_last_of('/') + 1);
   if (label.find_first_of("\"\\") != std::string::npos) {
     std::fprintf(stderr, "bpreplay: a label holds no quote or backslash\n");
@@ -419,6 +457,14 @@ int main(int argc, char** argv) {
   }
   Stream stream;
   if (!Load(file, &stream)) return 2;
+  if (!window_arg.empty()) {
+    if (std::sscanf(window_arg.c_str(), "%zu:%zu", &window.first, &window.last) != 2 ||
+        window.first == 0 || window.first > window.last || window.last > stream.frames.size()) {
+      std::fprintf(stderr, "bpreplay: --window wants FIRST:LAST within the %zu frames\n",
+                   stream.frames.size());
+      return 2;
+    }
+  }
   std::fprintf(stderr,
                "bpreplay: %s: %" PRIu64 " batches, %zu frames, at most %zu objects, %" PRIu64
                " items and %" PRIu64 " batches left out\n",
@@ -432,7 +478,7 @@ int main(int argc, char** argv) {
     Run r = coord == "double" ? RunEngine<double>(name, threads, stream, repeats, progress)
                               : RunEngine<float>(name, threads, stream, repeats, progress);
     if (!have_first) first = r, have_first = true;
-    Print(label, name, "", stream, repeats, r, first);
+    Print(label, name, "", stream, repeats, r, first, window);
     agree = agree && r.chain == first.chain;
   }
   for (const bp::bench::PeerInfo* info : peers) {
@@ -444,7 +490,7 @@ int main(int argc, char** argv) {
     }
     Run r = RunPeer(*info, stream, repeats, progress);
     if (!have_first) first = r, have_first = true;
-    Print(label, info->name, info->description, stream, repeats, r, first);
+    Print(label, info->name, info->description, stream, repeats, r, first, window);
     agree = agree && r.chain == first.chain;
   }
   return agree ? 0 : 1;

@@ -1,7 +1,8 @@
 # Installs the build tree into a scratch prefix, then configures, builds and runs the standalone
-# examples against it: the engine alone (find_package(broadphase)) and the client library
-# (find_package(broadphase COMPONENTS client)).
+# examples against it: the engine alone (find_package(broadphase)), the client library
+# (find_package(broadphase COMPONENTS client)) and, with Bullet, the Bullet producer.
 # Arguments: -DBUILD_DIR= -DSOURCE_DIR= -DWORK_DIR= -DCXX_FLAGS= (the build's sanitizer flags)
+# -DWITH_BULLET= (build examples/bullet_world too)
 file(REMOVE_RECURSE ${WORK_DIR})
 execute_process(COMMAND ${CMAKE_COMMAND} --install ${BUILD_DIR} --prefix ${WORK_DIR}/prefix
   RESULT_VARIABLE rc OUTPUT_QUIET)
@@ -38,6 +39,26 @@ endif()
 execute_process(COMMAND ${WORK_DIR}/client-build/client_standalone 15 200 RESULT_VARIABLE rc)
 if(NOT rc EQUAL 0)
   message(FATAL_ERROR "the client example failed: ${rc}")
+endif()
+
+# The Bullet producer, where Bullet is installed: configure and build it standalone, then run it
+# with no daemon on the domain (it must say so and exit 2).
+if(WITH_BULLET)
+  execute_process(COMMAND ${CMAKE_COMMAND} -S ${SOURCE_DIR}/examples/bullet_world
+    -B ${WORK_DIR}/bullet-build -G Ninja -DCMAKE_PREFIX_PATH=${WORK_DIR}/prefix
+    "-DCMAKE_CXX_FLAGS=${CXX_FLAGS}" RESULT_VARIABLE rc)
+  if(NOT rc EQUAL 0)
+    message(FATAL_ERROR "configuring bullet_world against the installed package failed: ${rc}")
+  endif()
+  execute_process(COMMAND ${CMAKE_COMMAND} --build ${WORK_DIR}/bullet-build RESULT_VARIABLE rc)
+  if(NOT rc EQUAL 0)
+    message(FATAL_ERROR "building bullet_world failed: ${rc}")
+  endif()
+  execute_process(COMMAND ${WORK_DIR}/bullet-build/bullet_world --domain 15 --wait 0.3
+    RESULT_VARIABLE rc ERROR_VARIABLE err)
+  if(NOT rc EQUAL 2 OR NOT err MATCHES "no daemon")
+    message(FATAL_ERROR "bullet_world without a daemon: exit ${rc}, ${err}")
+  endif()
 endif()
 
 # The components: each loads what it names (and the engine), and an unknown one is refused.
