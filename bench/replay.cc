@@ -12,9 +12,13 @@
 //   bpreplay bullet.rec -e grid_dense,brute_force --peers all -r 3
 //   bpreplay bullet.rec --window 601:900       also the median and p90 of frames 601 to 900
 //
-// Peers see every object as a user of the library would give it (they have no static flag);
-// pairs of two static objects, which our engines never report, are dropped from their sets
-// after the timed part, with the exact closed box test.
+// The peer adapters set no static or category filter: they are given every object alike, and
+// the pairs our engines would not report (two static objects, categories that do not accept
+// each other) are dropped from their sets after the timed part, with the exact closed box test.
+// Items the daemon would refuse are left out and counted (see Load). A restate (a producer
+// stating its objects again after a daemon restart) is not replayed as the daemon applies it:
+// its inserts of live ids are left out; `bpctl check` replays such recordings with the daemon's
+// own admission.
 // Exit status: 0 when every line agrees; 1 when a chain differs; 2 on bad arguments or input.
 #include <algorithm>
 #include <array>
@@ -34,6 +38,7 @@
 #include <unistd.h>
 
 #include "bp/engines.h"
+#include "bp/object_options.h"
 #include "bp/transport/recording.h"
 #include "bp/workload.h"
 
@@ -58,21 +63,22 @@ struct Batch {
   std::vector<uint64_t> erases;
   std::vector<uint64_t> insert_ids, update_ids;
   std::vector<PeerBox> inserts, updates;
-  std::vector<bool> insert_static;
+  std::vector<bp::ObjectOptions> insert_options;
 };
 using Frame = std::vector<Batch>;
 
 struct Stream {
   std::vector<Frame> frames;
-  std::vector<bool> is_static;  // by dense id
   PeerBox bounds;               // every box of the stream
   size_t max_live = 0;
   uint64_t batches = 0, skipped_batches = 0, skipped_items = 0;
 };
 
-// Reads a recording into frames. Items the daemon would refuse (an unknown or duplicate id, a
-// box that is not finite or inverted, arrays of the wrong length, another dimension than 3)
-// are left out and counted.
+// Reads a recording into frames. Batches the daemon refuses whole (unparsable, another schema
+// version, producer 0 or above 65535) and items it refuses (an unknown or duplicate id, an id
+// of 2^48 or more, a box that is not finite or inverted, of another dimension than 3, in both
+// precisions or with arrays of the wrong length, attributes of the wrong length or on an
+// update) are left out and counted.
 bool Load(const std::string& path, Stream* out) {
   bp::wire::RecordingReader reader;
   if (bp::Status s = reader.Open(path); !s.ok()) {
@@ -89,9 +95,10 @@ bool Load(const std::string& path, Stream* out) {
   size_t live_count = 0;
   // Reads array's box i; false if it has no valid box.
   auto box_of = [&](const bp::wire::BoxArray& a, int i, PeerBox* b) {
-    const bool wide = a.lo64_size() > 0;
+    const bool wide = a.lo64_size() > 0 || a.hi64_size() > 0;
     const int n = a.ids_size();
-    if ((wide ? a.lo64_size() : a.lo32_size()) != 3 * n ||
+    if ((wide && (a.lo32_size() > 0 || a.hi32_size() > 0)) ||
+        (wide ? a.lo64_size() : a.lo32_size()) != 3 * n ||
         (wide ? a.hi64_size() : a.hi32_size()) != 3 * n) {
       return false;
     }
@@ -114,14 +121,18 @@ bool Load(const std::string& path, Stream* out) {
     }
     if (end) break;
     ++out->batches;
-    if (!batch.ParseFromString(recorded.payload()) || batch.dim() != 3) {
+    if (!batch.ParseFromString(recorded.payload()) || batch.version() != bp::wire::SCHEMA_VERSION_1 ||
+        batch.producer() == 0 || batch.producer() > 65535) {
       ++out->skipped_batches;
       continue;
     }
+    // Boxes of another dimension are refused; the batch's erases and frame boundary stand.
+    const bool boxes_ok = batch.dim() == 3;
     const uint64_t producer = uint64_t{batch.producer()} << 48;
+    constexpr uint64_t kLocalIdLimit = uint64_t{1} << 48;
     Batch b;
     for (uint64_t local : batch.erases()) {
-      auto it = dense.find(producer | local);
+      auto it = local < kLocalIdLimit ? dense.find(producer | local) : dense.end();
       if (it == dense.end() || !live[it->second]) {
         ++out->skipped_items;
         continue;
@@ -131,27 +142,40 @@ bool Load(const std::string& path, Stream* out) {
       b.erases.push_back(it->second);
     }
     const bp::wire::BoxArray& ins = batch.inserts();
-    for (int i = 0; i < ins.ids_size(); ++i) {
+    const int n = ins.ids_size();
+    const bool attributes_ok =
+        (ins.static_flags_size() == 0 || ins.static_flags_size() == n) &&
+        (ins.category_size() == 0 || ins.category_size() == n) &&
+        (ins.mask_size() == 0 || ins.mask_size() == n);
+    for (int i = 0; i < n; ++i) {
       PeerBox box;
-      auto [it, fresh] = dense.try_emplace(producer | ins.ids(i), dense.size());
-      if (!box_of(ins, i, &box) || live[it->second]) {
+      if (!boxes_ok || !attributes_ok || ins.ids(i) >= kLocalIdLimit || !box_of(ins, i, &box)) {
         ++out->skipped_items;
         continue;
       }
-      const bool is_static = ins.static_flags_size() == ins.ids_size() && ins.static_flags(i);
-      if (out->is_static.size() <= it->second) out->is_static.resize(it->second + 1);
-      out->is_static[it->second] = is_static;
+      auto [it, fresh] = dense.try_emplace(producer | ins.ids(i), dense.size());
+      if (live[it->second]) {
+        ++out->skipped_items;
+        continue;
+      }
+      bp::ObjectOptions options;
+      if (ins.static_flags_size() == n) options.is_static = ins.static_flags(i);
+      if (ins.category_size() == n) options.category = ins.category(i);
+      if (ins.mask_size() == n) options.mask = ins.mask(i);
       live[it->second] = true;
       ++live_count;
       b.insert_ids.push_back(it->second);
       b.inserts.push_back(box);
-      b.insert_static.push_back(is_static);
+      b.insert_options.push_back(options);
     }
     const bp::wire::BoxArray& ups = batch.updates();
+    const bool update_attributes =
+        ups.static_flags_size() != 0 || ups.category_size() != 0 || ups.mask_size() != 0;
     for (int i = 0; i < ups.ids_size(); ++i) {
       PeerBox box;
-      auto it = dense.find(producer | ups.ids(i));
-      if (it == dense.end() || !live[it->second] || !box_of(ups, i, &box)) {
+      auto it = ups.ids(i) < kLocalIdLimit ? dense.find(producer | ups.ids(i)) : dense.end();
+      if (!boxes_ok || update_attributes || it == dense.end() || !live[it->second] ||
+          !box_of(ups, i, &box)) {
         ++out->skipped_items;
         continue;
       }
@@ -178,6 +202,7 @@ bool Load(const std::string& path, Stream* out) {
 struct Run {
   std::vector<double> frame_ms, run_medians;
   uint64_t pairs_max = 0, collides = 0, uncollides = 0, chain = 0;  // pairs_max: after any frame
+  uint64_t unknown_candidates = 0;  // peers: pairs naming an object not live (a disagreement)
 };
 
 bool Overlap(const PeerBox& a, const PeerBox& b) {
@@ -233,9 +258,7 @@ Run RunEngine(const std::string& algorithm, unsigned threads, const Stream& stre
       t.erases = b.erases;
       for (size_t i = 0; i < b.inserts.size(); ++i) {
         t.inserts.push_back({b.insert_ids[i], ToBox<T>(b.inserts[i])});
-        bp::ObjectOptions o;
-        o.is_static = b.insert_static[i];
-        t.options.push_back(o);
+        t.options.push_back(b.insert_options[i]);
       }
       for (size_t i = 0; i < b.updates.size(); ++i) {
         t.updates.push_back({b.update_ids[i], ToBox<T>(b.updates[i])});
@@ -290,7 +313,8 @@ Run RunPeer(const bp::bench::PeerInfo& info, const Stream& stream, int repeats, 
   Run r;
   for (int rep = 0; rep < repeats; ++rep) {
     std::unique_ptr<bp::bench::Peer> peer = info.make(world);
-    std::unordered_map<uint64_t, PeerBox> live;  // the exact boxes, untimed
+    // The exact boxes and the options of the live objects, untimed.
+    std::unordered_map<uint64_t, std::pair<PeerBox, bp::ObjectOptions>> live;
     std::vector<uint64_t> pairs, previous, diff;
     bp::workload::HashChain chain;
     std::vector<double> run;
@@ -306,14 +330,23 @@ Run RunPeer(const bp::bench::PeerInfo& info, const Stream& stream, int repeats, 
       run.push_back(MsSince(start));
       for (const Batch& b : stream.frames[f]) {
         for (uint64_t id : b.erases) live.erase(id);
-        for (size_t i = 0; i < b.inserts.size(); ++i) live[b.insert_ids[i]] = b.inserts[i];
-        for (size_t i = 0; i < b.updates.size(); ++i) live[b.update_ids[i]] = b.updates[i];
+        for (size_t i = 0; i < b.inserts.size(); ++i) {
+          live[b.insert_ids[i]] = {b.inserts[i], b.insert_options[i]};
+        }
+        for (size_t i = 0; i < b.updates.size(); ++i) live[b.update_ids[i]].first = b.updates[i];
       }
       previous.swap(pairs);
       pairs.clear();
       peer->ForEachCandidate([&](uint64_t a, uint64_t b) {
-        if (stream.is_static[a] && stream.is_static[b]) return;
-        if (Overlap(live.at(a), live.at(b))) pairs.push_back(bp::workload::PairKey(a, b));
+        auto x = live.find(a), y = live.find(b);
+        if (x == live.end() || y == live.end()) {
+          ++r.unknown_candidates;  // a pair of an object the peer should not hold
+          return;
+        }
+        if (!bp::Accepts(x->second.second, y->second.second)) return;
+        if (Overlap(x->second.first, y->second.first)) {
+          pairs.push_back(bp::workload::PairKey(a, b));
+        }
       });
       std::sort(pairs.begin(), pairs.end());
       pairs.erase(std::unique(pairs.begin(), pairs.end()), pairs.end());
@@ -390,7 +423,7 @@ void Print(const std::string& label, const std::string& name, const std::string&
       total / static_cast<double>(std::max<size_t>(1, r.frame_ms.size())),
       Quantile(r.frame_ms, 0.9), Quantile(r.frame_ms, 1.0),
       median / std::max(1e-9, Quantile(first.run_medians, 0.5)), r.pairs_max, r.collides,
-      r.uncollides, r.chain, r.chain == first.chain ? "true" : "false", s.skipped_items);
+      r.uncollides, r.chain, r.chain == first.chain && r.unknown_candidates == 0 ? "true" : "false", s.skipped_items);
   std::fflush(stdout);
 }
 
@@ -491,7 +524,7 @@ int main(int argc, char** argv) {
     Run r = RunPeer(*info, stream, repeats, progress);
     if (!have_first) first = r, have_first = true;
     Print(label, info->name, info->description, stream, repeats, r, first, window);
-    agree = agree && r.chain == first.chain;
+    agree = agree && r.chain == first.chain && r.unknown_candidates == 0;
   }
   return agree ? 0 : 1;
 }

@@ -100,7 +100,24 @@ void EventChecker::Collect(const std::function<void(const FrameCheck&)>& f) {
     {
       std::lock_guard lock(mutex_);
       auto it = received_.find(e->first);
-      if (it == received_.end() || !it->second.complete) return;
+      if (it == received_.end() || !it->second.complete) {
+        // The daemon publishes frames in order: once a later frame is complete, this one will
+        // not come (a part lost, or the batch refused whole). It is reported as not received.
+        bool later_complete = false;
+        for (auto l = received_.upper_bound(e->first); l != received_.end(); ++l) {
+          later_complete = later_complete || l->second.complete;
+        }
+        if (!later_complete) return;
+        if (it != received_.end()) received_.erase(it);
+        FrameCheck lost;
+        lost.frame = e->first;
+        lost.expected = e->second.uncollide.size() + e->second.collide.size();
+        lost.arrived = false;
+        lost.first_difference = "the frame's events did not arrive (a later frame's did)";
+        expected_.erase(e);
+        f(lost);
+        continue;
+      }
       r = std::move(it->second);
       received_.erase(it);
     }

@@ -6,7 +6,8 @@
 // last one; Collect then compares every frame both sides have finished, in frame order.
 // A frame is matched by EventBatch.source_frame (the producer's frame number that closed it);
 // events of frames another producer closed, snapshot parts and interest streams are ignored.
-// Pairs are producer-local ids (a << 32 | b, a < b) on both sides.
+// Pairs are producer-local ids (a << 32 | b, a < b; ids below 2^32) on both sides. A frame whose
+// events do not arrive while a later frame's do is reported as not received.
 //
 // Thread safety: Expect and Collect from one thread; the listener thread is internal.
 #pragma once
@@ -33,6 +34,7 @@ struct FrameCheck {
   uint64_t unexpected = 0;       ///< received events not expected
   uint64_t foreign = 0;          ///< received events naming another producer's object (ignored)
   double latency_ms = 0;         ///< the frame's publication to its last part's arrival
+  bool arrived = true;           ///< false: the frame's events never arrived
   std::string first_difference;  ///< "" when the frame matched
 };
 

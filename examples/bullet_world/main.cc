@@ -174,7 +174,15 @@ int Run(const Options& o) {
   std::map<uint64_t, StepRow> rows;  // steps whose events are not compared yet
   std::vector<double> latency, step_ms, broadphase_ms, moved, events;
   uint64_t checked = 0, differing = 0, missing = 0, unexpected = 0, foreign = 0, received = 0;
+  uint64_t lost = 0;  // frames whose events never arrived while later ones did
   auto on_check = [&](const FrameCheck& c) {
+    if (!c.arrived) {
+      ++lost;
+      std::fprintf(stderr, "bullet_world: step %llu: %s\n",
+                   static_cast<unsigned long long>(c.frame), c.first_difference.c_str());
+      rows.erase(c.frame);
+      return;
+    }
     ++checked;
     received += c.received;
     missing += c.missing;
@@ -286,11 +294,12 @@ int Run(const Options& o) {
     checker->Collect(on_check);
     std::this_thread::sleep_for(std::chrono::milliseconds(10));
   }
-  const size_t never = checker ? checker->pending() : 0;
-  if (never > 0) {
+  const size_t pending = checker ? checker->pending() : 0;
+  if (pending > 0) {
     std::fprintf(stderr, "bullet_world: the events of %zu frames did not arrive within %.0f s%s\n",
-                 never, o.wait_s, checker->gaps() > 0 ? " (envelopes were lost: a gap)" : "");
+                 pending, o.wait_s, checker->gaps() > 0 ? " (envelopes were lost: a gap)" : "");
   }
+  const size_t never = pending + lost;
   if (checker && !checker->listen_status().ok()) {
     std::fprintf(stderr, "bullet_world: the event listener stopped: %s\n",
                  checker->listen_status().ToString().c_str());
@@ -299,15 +308,19 @@ int Run(const Options& o) {
   const double seconds = std::chrono::duration<double>(Clock::now() - start).count();
   const uint64_t gaps = checker ? checker->gaps() : 0;
   const bool exact = checker && !failed && never == 0 && differing == 0 && gaps == 0;
+  std::string verdict = !checker ? "not checked" : exact ? "all equal" : "";
+  if (checker && !exact) {
+    verdict = fmt::format("{} differing, {} not received", differing, never);
+    if (gaps > 0) verdict += fmt::format(", {} envelopes lost", gaps);
+    if (failed) verdict += ", stopped early (see above)";
+  }
   std::printf(
       "bullet_world: %llu frames in %.1f s (%llu late), %llu compared with Bullet's pairs: %s; "
       "%llu events received; moved bodies per step p50 %.0f; latency p50 %.2f ms p99 %.2f ms; "
       "Bullet step p50 %.2f ms, its broadphase p50 %.2f ms\n",
       static_cast<unsigned long long>(frame), seconds, static_cast<unsigned long long>(late),
       static_cast<unsigned long long>(checked),
-      !checker ? "not checked"
-      : exact  ? "all equal"
-               : fmt::format("{} differing, {} missing", differing, never).c_str(),
+      verdict.c_str(),
       static_cast<unsigned long long>(received), Quantile(moved, 0.5), Quantile(latency, 0.5),
       Quantile(latency, 0.99), Quantile(step_ms, 0.5), Quantile(broadphase_ms, 0.5));
   if (o.json) {

@@ -17,7 +17,12 @@ double MsSince(Clock::time_point start) {
   return std::chrono::duration<double, std::milli>(Clock::now() - start).count();
 }
 
+// The daemon receives the boxes as float: Bullet must compute them in float too.
+static_assert(sizeof(btScalar) == sizeof(float), "bullet_world needs single-precision Bullet");
+
 constexpr float kStep = 1.0f / 60.0f;
+// Ids stay below 2^32: pairs are keyed (a << 32 | b). Spawning stops there.
+constexpr uint64_t kIdLimit = uint64_t{1} << 32;
 // Spawn cells are this far apart, more than the widest box a body can have (a box of half
 // extents 0.5 turned diagonally), so that bodies never spawn inside each other.
 constexpr float kCell = 1.8f;
@@ -265,6 +270,7 @@ StepStats BulletWorld::Step() {
     stats.removed = static_cast<uint32_t>(doomed.size());
     for (auto& b : doomed) Remove(std::move(b));
   }
+  spawn = static_cast<uint32_t>(std::min<uint64_t>(spawn, kIdLimit - next_id_));
   for (uint32_t i = 0; i < spawn; ++i) {
     if (streamed) {
       Spawn(spout_cells_[next_spout_++ % spout_cells_.size()], true);

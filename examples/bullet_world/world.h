@@ -4,7 +4,8 @@
 // after it was spawned. Bodies that come to rest fall asleep (Bullet's deactivation) and keep
 // their boxes: once the pour has settled, most of the world rests and the spouts' bins move.
 //
-// Every body has a producer-local id that is never reused. After each Step:
+// Every body has a producer-local id that is never reused, below 2^32 (spawning stops there).
+// After each Step:
 // - TakeChanges lists what changed since the previous call as the daemon must see it: inserts
 //   (bodies added, static geometry flagged static), updates (bodies whose box changed, bit for
 //   bit) and erases (bodies removed). A box is the body's broadphase AABB: the box Bullet's own
