@@ -69,7 +69,7 @@ using Frame = std::vector<Batch>;
 
 struct Stream {
   std::vector<Frame> frames;
-  PeerBox bounds;               // every box of the stream
+  PeerBox bounds;  // every box of the stream
   size_t max_live = 0;
   uint64_t batches = 0, skipped_batches = 0, skipped_items = 0;
 };
@@ -121,8 +121,9 @@ bool Load(const std::string& path, Stream* out) {
     }
     if (end) break;
     ++out->batches;
-    if (!batch.ParseFromString(recorded.payload()) || batch.version() != bp::wire::SCHEMA_VERSION_1 ||
-        batch.producer() == 0 || batch.producer() > 65535) {
+    if (!batch.ParseFromString(recorded.payload()) ||
+        batch.version() != bp::wire::SCHEMA_VERSION_1 || batch.producer() == 0 ||
+        batch.producer() > 65535) {
       ++out->skipped_batches;
       continue;
     }
@@ -143,10 +144,9 @@ bool Load(const std::string& path, Stream* out) {
     }
     const bp::wire::BoxArray& ins = batch.inserts();
     const int n = ins.ids_size();
-    const bool attributes_ok =
-        (ins.static_flags_size() == 0 || ins.static_flags_size() == n) &&
-        (ins.category_size() == 0 || ins.category_size() == n) &&
-        (ins.mask_size() == 0 || ins.mask_size() == n);
+    const bool attributes_ok = (ins.static_flags_size() == 0 || ins.static_flags_size() == n) &&
+                               (ins.category_size() == 0 || ins.category_size() == n) &&
+                               (ins.mask_size() == 0 || ins.mask_size() == n);
     for (int i = 0; i < n; ++i) {
       PeerBox box;
       if (!boxes_ok || !attributes_ok || ins.ids(i) >= kLocalIdLimit || !box_of(ins, i, &box)) {
@@ -423,7 +423,8 @@ void Print(const std::string& label, const std::string& name, const std::string&
       total / static_cast<double>(std::max<size_t>(1, r.frame_ms.size())),
       Quantile(r.frame_ms, 0.9), Quantile(r.frame_ms, 1.0),
       median / std::max(1e-9, Quantile(first.run_medians, 0.5)), r.pairs_max, r.collides,
-      r.uncollides, r.chain, r.chain == first.chain && r.unknown_candidates == 0 ? "true" : "false", s.skipped_items);
+      r.uncollides, r.chain, r.chain == first.chain && r.unknown_candidates == 0 ? "true" : "false",
+      s.skipped_items);
   std::fflush(stdout);
 }
 

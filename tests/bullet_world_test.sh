@@ -32,7 +32,7 @@ pids+=($!)
 rc=0
 "$world_bin" --bodies 300 --steps 300 --fill-steps 60 --stream 2 --rate 0 --readers 2 \
   --domain "$domain" --partition "$partition" --cyclone-config "$src/config/cyclonedds-loopback.xml" \
-  --csv "$work/steps.csv" --json --quiet >"$work/world.out" 2>&1 || rc=$?
+  --csv "$work/steps.csv" --json --quiet --wait 60 >"$work/world.out" 2>&1 || rc=$?
 cat "$work/world.out"
 if ((rc != 0)); then
   echo "bullet_world exited with $rc; daemon log:"

@@ -319,8 +319,7 @@ int Run(const Options& o) {
       "%llu events received; moved bodies per step p50 %.0f; latency p50 %.2f ms p99 %.2f ms; "
       "Bullet step p50 %.2f ms, its broadphase p50 %.2f ms\n",
       static_cast<unsigned long long>(frame), seconds, static_cast<unsigned long long>(late),
-      static_cast<unsigned long long>(checked),
-      verdict.c_str(),
+      static_cast<unsigned long long>(checked), verdict.c_str(),
       static_cast<unsigned long long>(received), Quantile(moved, 0.5), Quantile(latency, 0.5),
       Quantile(latency, 0.99), Quantile(step_ms, 0.5), Quantile(broadphase_ms, 0.5));
   if (o.json) {
