@@ -460,30 +460,6 @@ void PrintJson(const std::string& scenario, const SceneParams& p, int frames, co
   std::fflush(stdout);
 }
 
-// The peer libraries named in list ("all", or names separated by commas); false on an unknown
-// name or one this build lacks.
-bool SelectPeers(const std::string& list, std::vector<const bp::bench::PeerInfo*>* out) {
-  const auto& peers = bp::bench::Peers();
-  std::stringstream names(list);
-  std::string name;
-  while (std::getline(names, name, ',')) {
-    if (name.empty()) continue;
-    bool found = false;
-    for (const auto& p : peers) {
-      if (name == "all" || name == p.name) {
-        out->push_back(&p);
-        found = true;
-      }
-    }
-    if (!found && name != "all") {
-      std::fprintf(stderr, "bpbench: peer '%s' is not in this build (bpbench --peers list)\n",
-                   name.c_str());
-      return false;
-    }
-  }
-  return true;
-}
-
 // Runs each peer through the scenario our engine just ran (result ours) and prints its line:
 // the same fields, plus the ratio of its median to ours and whether its exact set matched ours
 // after the last frame and over the whole chain.
@@ -855,7 +831,11 @@ int main(int argc, char** argv) {
     return 0;
   }
   std::vector<const bp::bench::PeerInfo*> peers;
-  if (!SelectPeers(peer_list, &peers)) return 2;
+  if (std::string unknown; !bp::bench::SelectPeers(peer_list, &peers, &unknown)) {
+    std::fprintf(stderr, "bpbench: peer '%s' is not in this build (bpbench --peers list)\n",
+                 unknown.c_str());
+    return 2;
+  }
   // Peers get the scene's own boxes, exact: refuse what would make our line a different scene.
   if (!peers.empty() && (cfg.world_box || cfg.big_boxes != 0 || cfg.static_rest ||
                          cfg.unpaired_every != 0 || cfg.margin > 0 || cfg.error_vs_double)) {

@@ -205,13 +205,6 @@ struct Run {
   uint64_t unknown_candidates = 0;  // peers: pairs naming an object not live (a disagreement)
 };
 
-bool Overlap(const PeerBox& a, const PeerBox& b) {
-  for (size_t k = 0; k < 3; ++k) {
-    if (!(a.lo[k] <= b.hi[k] && b.lo[k] <= a.hi[k])) return false;
-  }
-  return true;
-}
-
 template <class T>
 bp::Box<3, T> ToBox(const PeerBox& b) {
   bp::Box<3, T> out;
@@ -344,7 +337,7 @@ Run RunPeer(const bp::bench::PeerInfo& info, const Stream& stream, int repeats, 
           return;
         }
         if (!bp::Accepts(x->second.second, y->second.second)) return;
-        if (Overlap(x->second.first, y->second.first)) {
+        if (bp::bench::Overlap(x->second.first, y->second.first)) {
           pairs.push_back(bp::workload::PairKey(a, b));
         }
       });
@@ -474,16 +467,9 @@ int main(int argc, char** argv) {
     names.push_back(name);
   }
   std::vector<const bp::bench::PeerInfo*> peers;
-  std::stringstream peer_names(peer_list);
-  for (std::string name; std::getline(peer_names, name, ',');) {
-    bool found = false;
-    for (const auto& p : bp::bench::Peers()) {
-      if (name == "all" || name == p.name) peers.push_back(&p), found = true;
-    }
-    if (!found && name != "all" && !name.empty()) {
-      std::fprintf(stderr, "bpreplay: peer '%s' is not in this build\n", name.c_str());
-      return 2;
-    }
+  if (std::string unknown; !bp::bench::SelectPeers(peer_list, &peers, &unknown)) {
+    std::fprintf(stderr, "bpreplay: peer '%s' is not in this build\n", unknown.c_str());
+    return 2;
   }
   if (names.empty() && peers.empty()) {
     std::fprintf(stderr, "bpreplay: no engine and no peer to run\n");

@@ -4,21 +4,26 @@
 # Arguments: -DBUILD_DIR= -DSOURCE_DIR= -DWORK_DIR= -DCXX_FLAGS= (the build's sanitizer flags)
 # -DWITH_BULLET= (build examples/bullet_world too)
 file(REMOVE_RECURSE ${WORK_DIR})
+
+# Configures and builds examples/<name> against the installed package into <build>.
+function(build_example name build)
+  execute_process(COMMAND ${CMAKE_COMMAND} -S ${SOURCE_DIR}/examples/${name} -B ${build} -G Ninja
+    -DCMAKE_PREFIX_PATH=${WORK_DIR}/prefix "-DCMAKE_CXX_FLAGS=${CXX_FLAGS}" RESULT_VARIABLE rc)
+  if(NOT rc EQUAL 0)
+    message(FATAL_ERROR "configuring ${name} against the installed package failed: ${rc}")
+  endif()
+  execute_process(COMMAND ${CMAKE_COMMAND} --build ${build} RESULT_VARIABLE rc)
+  if(NOT rc EQUAL 0)
+    message(FATAL_ERROR "building ${name} failed: ${rc}")
+  endif()
+endfunction()
+
 execute_process(COMMAND ${CMAKE_COMMAND} --install ${BUILD_DIR} --prefix ${WORK_DIR}/prefix
   RESULT_VARIABLE rc OUTPUT_QUIET)
 if(NOT rc EQUAL 0)
   message(FATAL_ERROR "install failed: ${rc}")
 endif()
-execute_process(COMMAND ${CMAKE_COMMAND} -S ${SOURCE_DIR}/examples/engine_standalone
-  -B ${WORK_DIR}/build -G Ninja -DCMAKE_PREFIX_PATH=${WORK_DIR}/prefix
-  "-DCMAKE_CXX_FLAGS=${CXX_FLAGS}" RESULT_VARIABLE rc)
-if(NOT rc EQUAL 0)
-  message(FATAL_ERROR "configuring the example against the installed package failed: ${rc}")
-endif()
-execute_process(COMMAND ${CMAKE_COMMAND} --build ${WORK_DIR}/build RESULT_VARIABLE rc)
-if(NOT rc EQUAL 0)
-  message(FATAL_ERROR "building the example failed: ${rc}")
-endif()
+build_example(engine_standalone ${WORK_DIR}/build)
 execute_process(COMMAND ${WORK_DIR}/build/engine_standalone RESULT_VARIABLE rc)
 if(NOT rc EQUAL 0)
   message(FATAL_ERROR "the example reported wrong events: ${rc}")
@@ -26,16 +31,7 @@ endif()
 
 # The client library: configure, build and run (no daemon on that domain: it builds a batch,
 # waits briefly and says so).
-execute_process(COMMAND ${CMAKE_COMMAND} -S ${SOURCE_DIR}/examples/client_standalone
-  -B ${WORK_DIR}/client-build -G Ninja -DCMAKE_PREFIX_PATH=${WORK_DIR}/prefix
-  "-DCMAKE_CXX_FLAGS=${CXX_FLAGS}" RESULT_VARIABLE rc)
-if(NOT rc EQUAL 0)
-  message(FATAL_ERROR "configuring the client example against the installed package failed: ${rc}")
-endif()
-execute_process(COMMAND ${CMAKE_COMMAND} --build ${WORK_DIR}/client-build RESULT_VARIABLE rc)
-if(NOT rc EQUAL 0)
-  message(FATAL_ERROR "building the client example failed: ${rc}")
-endif()
+build_example(client_standalone ${WORK_DIR}/client-build)
 execute_process(COMMAND ${WORK_DIR}/client-build/client_standalone 15 200 RESULT_VARIABLE rc)
 if(NOT rc EQUAL 0)
   message(FATAL_ERROR "the client example failed: ${rc}")
@@ -44,16 +40,7 @@ endif()
 # The Bullet producer, where Bullet is installed: configure and build it standalone, then run it
 # with no daemon on the domain (it must say so and exit 2).
 if(WITH_BULLET)
-  execute_process(COMMAND ${CMAKE_COMMAND} -S ${SOURCE_DIR}/examples/bullet_world
-    -B ${WORK_DIR}/bullet-build -G Ninja -DCMAKE_PREFIX_PATH=${WORK_DIR}/prefix
-    "-DCMAKE_CXX_FLAGS=${CXX_FLAGS}" RESULT_VARIABLE rc)
-  if(NOT rc EQUAL 0)
-    message(FATAL_ERROR "configuring bullet_world against the installed package failed: ${rc}")
-  endif()
-  execute_process(COMMAND ${CMAKE_COMMAND} --build ${WORK_DIR}/bullet-build RESULT_VARIABLE rc)
-  if(NOT rc EQUAL 0)
-    message(FATAL_ERROR "building bullet_world failed: ${rc}")
-  endif()
+  build_example(bullet_world ${WORK_DIR}/bullet-build)
   execute_process(COMMAND ${WORK_DIR}/bullet-build/bullet_world --domain 15 --wait 0.3
     RESULT_VARIABLE rc ERROR_VARIABLE err)
   if(NOT rc EQUAL 2 OR NOT err MATCHES "no daemon")

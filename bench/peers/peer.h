@@ -58,6 +58,14 @@ struct PeerInfo {
 /// The peers compiled into this bpbench.
 const std::vector<PeerInfo>& Peers();
 
+/// The peers named in list ("all", or names separated by commas), appended to out; false on a
+/// name this build lacks, which *out_unknown then holds.
+bool SelectPeers(const std::string& list, std::vector<const PeerInfo*>* out,
+                 std::string* out_unknown);
+
+/// The exact closed-box test the drivers filter the peers' candidates with.
+bool Overlap(const PeerBox& a, const PeerBox& b);
+
 /// What a peer's runs through a scene measured, in the terms of bpbench's own results: frame
 /// times (the peer's updates and Refresh, timed; the exact filter and hashing, untimed), and the
 /// exact overlap set after every frame as WORKLOADS.md hashes it.

@@ -2,6 +2,7 @@
 #include <algorithm>
 #include <chrono>
 #include <iterator>
+#include <sstream>
 #include <unordered_map>
 
 #include "peer.h"
@@ -25,6 +26,33 @@ const std::vector<PeerInfo>& Peers() {
     return out;
   }();
   return peers;
+}
+
+bool SelectPeers(const std::string& list, std::vector<const PeerInfo*>* out,
+                 std::string* out_unknown) {
+  std::stringstream names(list);
+  for (std::string name; std::getline(names, name, ',');) {
+    if (name.empty()) continue;
+    bool found = false;
+    for (const auto& p : Peers()) {
+      if (name == "all" || name == p.name) {
+        out->push_back(&p);
+        found = true;
+      }
+    }
+    if (!found && name != "all") {
+      *out_unknown = name;
+      return false;
+    }
+  }
+  return true;
+}
+
+bool Overlap(const PeerBox& a, const PeerBox& b) {
+  for (size_t k = 0; k < 3; ++k) {
+    if (!(a.lo[k] <= b.hi[k] && b.lo[k] <= a.hi[k])) return false;
+  }
+  return true;
 }
 
 }  // namespace bp::bench
@@ -55,13 +83,6 @@ PeerBox Convert(const workload::SceneBox& b, double grid, double offset) {
     out.hi[a] = a < static_cast<size_t>(K) ? static_cast<double>(e.hi[a]) : 1.0;
   }
   return out;
-}
-
-bool Overlap(const PeerBox& a, const PeerBox& b) {
-  for (size_t k = 0; k < 3; ++k) {
-    if (!(a.lo[k] <= b.hi[k] && b.lo[k] <= a.hi[k])) return false;
-  }
-  return true;
 }
 
 template <int K, Coordinate T>

@@ -135,11 +135,11 @@ BulletWorld::BulletWorld(const WorldOptions& options)
 
   // The pour: cells over the whole floor, as many layers as keep each cell free for
   // kCellReuseSteps steps at the fill rate.
-  const uint32_t fill_rate =
+  fill_rate_ =
       (options_.bodies + std::max(1u, options_.fill_steps) - 1) / std::max(1u, options_.fill_steps);
   const int per_side = std::max(1, static_cast<int>((side_ - 1.0) / kCell));
   const int fill_layers =
-      std::max<int>(1, static_cast<int>((kCellReuseSteps * fill_rate +
+      std::max<int>(1, static_cast<int>((kCellReuseSteps * fill_rate_ +
                                          static_cast<uint32_t>(per_side * per_side) - 1) /
                                         static_cast<uint32_t>(per_side * per_side)));
   AddCells(0, 0, per_side, fill_layers, 7, &fill_cells_);
@@ -244,12 +244,10 @@ StepStats BulletWorld::Step() {
     doomed.push_back(std::move(streamed_.front()));
     streamed_.pop_front();
   }
-  const uint32_t fill_rate =
-      (options_.bodies + std::max(1u, options_.fill_steps) - 1) / std::max(1u, options_.fill_steps);
   uint32_t spawn = 0;
   bool streamed = false;
   if (poured_ < options_.bodies) {
-    spawn = std::min(fill_rate, options_.bodies - poured_);
+    spawn = std::min(fill_rate_, options_.bodies - poured_);
     poured_ += spawn;
   } else {
     spawn = options_.stream;

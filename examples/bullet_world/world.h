@@ -116,6 +116,7 @@ class BulletWorld {
   uint64_t step_ = 0;
   std::vector<std::array<float, 3>> fill_cells_, spout_cells_;
   size_t next_fill_ = 0, next_spout_ = 0;
+  uint32_t fill_rate_ = 0;  // bodies poured per step until `bodies` are in
   uint32_t poured_ = 0;
   uint64_t next_id_ = 1;
   std::vector<uint64_t> erased_;  // ids removed since the last TakeChanges, as sent before
