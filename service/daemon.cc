@@ -315,7 +315,7 @@ void Daemon::ProcessPayload(std::span<const uint8_t> payload, const dds_sample_i
   frame_dirty_ = true;
   ingest_work_ += Clock::now() - start;
   if (config_.frames.boundary == FrameBoundary::kEndOfFrame && batch_.end_of_frame()) {
-    RunFrame(producer, batch_.frame(), batch_.sent_time_ns());
+    RunFrame(producer, batch_.frame(), batch_.sent_time_ns(), batch_.restate());
   }
 }
 

@@ -64,6 +64,9 @@ class Daemon {
   /// Builds the engine and joins DDS as config says.
   static Status Create(const Config& config, std::unique_ptr<Daemon>* out);
   ~Daemon();
+  /// Makes this daemon announce itself as a shard of a sharded world in every status report
+  /// (its DDS partition, the shard's, comes from config). Call before Run().
+  void SetShard(const wire::ShardInfo& shard) { shard_ = shard; }
   /// Serves until RequestStop(); ok on a clean stop.
   Status Run();
   /// Asks Run() to finish the frame and return (thread-safe; not async-signal-safe).
@@ -124,7 +127,9 @@ class Daemon {
   // Takes and processes up to max_rounds rounds of batches; with until_stop, also returns as
   // soon as a stop is requested.
   void Drain(size_t max_rounds, bool until_stop);
-  void RunFrame(uint32_t source_producer, uint64_t source_frame, uint64_t source_sent_ns);
+  // Queries and publishes a frame; restate: a restate run's last batch closed it.
+  void RunFrame(uint32_t source_producer, uint64_t source_frame, uint64_t source_sent_ns,
+                bool restate = false);
   // Takes the snapshot requests that arrived; publishes one snapshot if any asked for it and
   // the last one is limits.snapshot_interval_ms old. Returns when a deferred one is due
   // (time_point::max() if none).
@@ -212,7 +217,11 @@ class Daemon {
   uint64_t event_seq_ = 0;
   uint64_t status_seq_ = 0;
   uint64_t event_write_failures_ = 0;
-  uint64_t epoch_ = 0;  // random per start, on every event part
+  uint64_t epoch_ = 0;     // random per start, on every event part
+  wire::ShardInfo shard_;  // name empty: not a shard
+  // The source of the last frame a producer's batch closed: carried by snapshot parts.
+  uint32_t last_source_producer_ = 0;
+  uint64_t last_source_frame_ = 0;
   std::vector<std::pair<uint64_t, uint64_t>> snapshot_pairs_;
   wire::SnapshotRequest request_;
   bool snapshot_due_ = false;  // a request arrived and its snapshot waits for the interval

@@ -22,7 +22,8 @@ using util::Percentile;
 
 }  // namespace
 
-void Daemon::RunFrame(uint32_t source_producer, uint64_t source_frame, uint64_t source_sent_ns) {
+void Daemon::RunFrame(uint32_t source_producer, uint64_t source_frame, uint64_t source_sent_ns,
+                      bool restate) {
   const auto start = Clock::now();
   const int64_t start_wall_ns = frame_log_ ? static_cast<int64_t>(transport::WallClockNs()) : 0;
   host_->Query(&uncollide_, &collide_);
@@ -35,12 +36,17 @@ void Daemon::RunFrame(uint32_t source_producer, uint64_t source_frame, uint64_t 
     event_msg_.set_source_producer(source_producer);
     event_msg_.set_source_frame(source_frame);
     event_msg_.set_source_sent_time_ns(source_sent_ns);
+    event_msg_.set_restate(restate);
     event_msg_.set_objects(host_->Objects());
     event_msg_.set_overlaps(WorldOverlaps());
     WriteEventPart();
   });
   PublishInterestEvents(frame, source_producer, source_frame, source_sent_ns);
   frames_.store(frame);
+  if (source_producer != 0 && !restate) {
+    last_source_producer_ = source_producer;
+    last_source_frame_ = source_frame;
+  }
   frame_dirty_ = false;
   ++interval_frames_;
   interval_events_ += pairs;
@@ -213,6 +219,8 @@ void Daemon::PublishSnapshot() {
   size_t parts = 0;
   ForEachSnapshotPart([&] {
     event_msg_.set_sequence(++event_seq_);
+    event_msg_.set_source_producer(last_source_producer_);
+    event_msg_.set_source_frame(last_source_frame_);
     event_msg_.set_objects(host_->Objects());
     event_msg_.set_overlaps(WorldOverlaps());
     WriteEventPart();
@@ -255,6 +263,7 @@ void Daemon::PublishStatus(wire::Health health, bool with_interval) {
   status_msg_.set_interests(static_cast<uint32_t>(interests_->size()));
   status_msg_.set_max_batch_items(config_.limits.max_batch_items);
   status_msg_.set_max_batch_bytes(config_.limits.max_batch_bytes);
+  if (!shard_.name().empty()) *status_msg_.mutable_shard() = shard_;
   buffer_.clear();
   if (!status_msg_.SerializeToString(&buffer_)) {
     spdlog::warn("status report does not serialise");

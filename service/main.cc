@@ -18,6 +18,8 @@
 #include <spdlog/sinks/stdout_color_sinks.h>
 #include <spdlog/spdlog.h>
 
+#include "bp/transport/shard_map.h"
+
 namespace {
 
 int SetUpLogging(const bp::service::LoggingConfig& logging) {
@@ -39,6 +41,39 @@ int SetUpLogging(const bp::service::LoggingConfig& logging) {
   return 0;
 }
 
+// A shard of a sharded world: loads the map, finds this daemon's shard (shards.self, or --shard)
+// and moves the daemon into the shard's partition. Returns the problem, or "" when all is well.
+std::string SetUpShard(const std::string& cli_shard, bp::service::Config* config,
+                       bp::wire::ShardInfo* info) {
+  if (!cli_shard.empty()) config->shards.self = cli_shard;
+  if (config->shards.map.empty()) {
+    return cli_shard.empty() ? "" : "--shard needs a shard map (shards.map in the configuration)";
+  }
+  bp::transport::ShardMap map;
+  if (bp::Status s = bp::transport::ShardMap::Load(config->shards.map, &map); !s.ok()) {
+    return s.message();
+  }
+  if (map.dimension() != config->engine.dimension) {
+    return "shard map " + config->shards.map + " is " + std::to_string(map.dimension()) +
+           "-D but engine.dimension is " + std::to_string(config->engine.dimension);
+  }
+  const int self = map.Find(config->shards.self);
+  if (self < 0) {
+    std::string names;
+    for (size_t s = 0; s < map.size(); ++s) names += (s ? ", " : "") + map.name(s);
+    return "shards.self '" + config->shards.self + "' is not a shard of " + config->shards.map +
+           " (its shards: " + names + "; set shards.self or --shard)";
+  }
+  info->set_name(config->shards.self);
+  info->set_index(static_cast<uint32_t>(self));
+  info->set_count(static_cast<uint32_t>(map.size()));
+  info->set_map_digest(map.digest());
+  info->set_map(map.canonical());
+  info->set_blocks_owned(map.BlocksOwned(static_cast<size_t>(self)));
+  config->dds.partition = bp::transport::ShardPartition(config->dds.partition, config->shards.self);
+  return "";
+}
+
 }  // namespace
 
 int main(int argc, char** argv) {
@@ -52,6 +87,9 @@ int main(int argc, char** argv) {
                  "YAML configuration (default: $BP_CONFIG, else config/broadphased.yaml here or "
                  "next to the binary)")
       ->check(CLI::ExistingFile);
+  std::string shard;
+  app.add_option("--shard", shard,
+                 "the shard this daemon serves, a name in the shard map (overrides shards.self)");
   app.add_flag("--print-config", print_config, "print the effective configuration and exit");
   app.add_flag("--check-config", check_config, "validate the configuration and exit");
   try {
@@ -66,8 +104,16 @@ int main(int argc, char** argv) {
     std::fprintf(stderr, "broadphased: configuration refused:\n%s\n", loaded.message().c_str());
     return 2;
   }
+  bp::wire::ShardInfo shard_info;
+  const std::string partition = config.dds.partition;
+  if (std::string problem = SetUpShard(shard, &config, &shard_info); !problem.empty()) {
+    std::fprintf(stderr, "broadphased: configuration refused:\n%s\n", problem.c_str());
+    return 2;
+  }
   if (print_config) {
-    std::cout << bp::service::ConfigToYaml(config);
+    bp::service::Config printed = config;
+    printed.dds.partition = partition;  // as configured; the shard's is derived from it
+    std::cout << bp::service::ConfigToYaml(printed);
     return 0;
   }
   if (check_config) {
@@ -91,6 +137,13 @@ int main(int argc, char** argv) {
   if (bp::Status s = bp::service::Daemon::Create(config, &daemon); !s.ok()) {
     spdlog::critical("cannot start: {}", s.ToString());
     return 1;
+  }
+  if (!shard_info.name().empty()) {
+    spdlog::info("shard '{}' ({} of {}, {} blocks) of map {} (digest {:016x}), partition '{}'",
+                 shard_info.name(), shard_info.index() + 1, shard_info.count(),
+                 shard_info.blocks_owned(), config.shards.map, shard_info.map_digest(),
+                 config.dds.partition);
+    daemon->SetShard(shard_info);
   }
   std::atomic<bool> done{false};
   std::thread signal_thread([&] {

@@ -25,8 +25,8 @@ using detail::Field;
 using detail::NumberRange;
 using detail::YamlReader;
 
-constexpr std::array<std::string_view, 6> kSections{"engine", "dds",     "frames",
-                                                    "limits", "logging", "producers"};
+constexpr std::array<std::string_view, 7> kSections{"engine",  "dds",       "frames", "limits",
+                                                    "logging", "producers", "shards"};
 constexpr std::array<std::string_view, 6> kEngineKeys{"algorithm", "dimension", "coordinate",
                                                       "cell_size", "threads",   "margin"};
 constexpr std::array<std::string_view, 7> kDdsKeys{
@@ -42,6 +42,7 @@ constexpr std::array<std::string_view, 9> kLimitsKeys{
 constexpr std::array<std::string_view, 4> kLoggingKeys{"level", "summary_interval_s", "file",
                                                        "frame_log"};
 constexpr std::array<std::string_view, 1> kProducersKeys{"lease_s"};
+constexpr std::array<std::string_view, 2> kShardsKeys{"map", "self"};
 
 // Indexed by the enums' values.
 constexpr std::array<std::string_view, 3> kCoordinateNames{"float", "double", "int32"};
@@ -212,6 +213,13 @@ void ReadProducers(YamlReader& r, const Field& section, ProducersConfig* p) {
   });
 }
 
+void ReadShards(YamlReader& r, const Field& section, ShardsConfig* s) {
+  r.ReadMapping(section, kShardsKeys, [&](std::string_view name, const Field& v) {
+    if (name == "map") r.ReadString(v, &s->map);
+    if (name == "self") r.ReadString(v, &s->self);
+  });
+}
+
 // Checks that involve more than one key, on the values as read (defaults where absent).
 void CheckCrossKeys(YamlReader& r, Config* c) {
   const EngineConfig& e = c->engine;
@@ -245,6 +253,14 @@ void CheckCrossKeys(YamlReader& r, Config* c) {
     r.Error(*margin_mark, "engine.margin",
             "int32 coordinates need an integral margin below 2^31; got " +
                 YamlReader::FormatNumber(e.margin));
+  }
+  // A shard routes boxes as they are: a fattened box could overlap a block its box does not.
+  if (!c->shards.map.empty() && e.margin != 0 && margin_mark) {
+    r.Error(*margin_mark, "engine.margin",
+            "a shard (shards.map is set) needs margin 0: producers route the boxes as sent");
+  }
+  if (auto map_mark = r.MarkOf("shards.map"); map_mark && c->shards.map.empty()) {
+    r.Error(*map_mark, "shards.map", "empty: leave the shards section out when not sharded");
   }
   // The shipped file spells out every default, tick_ms included; only a changed value means the
   // author expected ticks.
@@ -361,6 +377,7 @@ Status ParseConfig(std::string_view yaml_text, std::string_view source, Config* 
         if (name == "limits") ReadLimits(r, section, &config.limits);
         if (name == "logging") ReadLogging(r, section, &config.logging);
         if (name == "producers") ReadProducers(r, section, &config.producers);
+        if (name == "shards") ReadShards(r, section, &config.shards);
       });
       CheckCrossKeys(r, &config);
     }
@@ -413,6 +430,7 @@ Status LoadConfigFile(const std::string& path, Config* out) {
   ResolveAgainst(dir, &config.dds.cyclone_config);
   ResolveAgainst(dir, &config.logging.file);
   ResolveAgainst(dir, &config.logging.frame_log);
+  ResolveAgainst(dir, &config.shards.map);
   *out = std::move(config);
   return Status::Ok();
 }
@@ -466,6 +484,11 @@ std::string ConfigToYaml(const Config& c) {
   line(k1, "frame_log", YamlString(c.logging.frame_log));
   y += "producers:\n";
   line(k1, "lease_s", FormatNumber(c.producers.lease_s));
+  if (!c.shards.map.empty()) {
+    y += "shards:\n";
+    line(k1, "map", YamlString(c.shards.map));
+    line(k1, "self", YamlString(c.shards.self));
+  }
   return y;
 }
 

@@ -143,6 +143,18 @@ struct ProducersConfig {
   bool operator==(const ProducersConfig&) const = default;
 };
 
+/// The `shards` section: this daemon is one shard of a world served by several daemons.
+struct ShardsConfig {
+  /// "" = not sharded; else the shard map file (bp/transport/shard_map.h), the same for every
+  /// daemon and client of the world, resolved like dds.cyclone_config.
+  std::string map;
+  /// The shard this daemon serves: a name in the map (broadphased --shard overrides it).
+  std::string self;
+
+  /// Member-wise equality.
+  bool operator==(const ShardsConfig&) const = default;
+};
+
 /// The whole configuration.
 struct Config {
   EngineConfig engine;        ///< `engine`
@@ -151,6 +163,7 @@ struct Config {
   LimitsConfig limits;        ///< `limits`
   LoggingConfig logging;      ///< `logging`
   ProducersConfig producers;  ///< `producers`
+  ShardsConfig shards;        ///< `shards`
   /// Where it came from: the file path, or the name given to ParseConfig.
   std::string source;
   /// Accepted but noteworthy, e.g. "<source>:3:14: engine.cell_size: ignored by engine

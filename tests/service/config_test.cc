@@ -268,8 +268,11 @@ const RuleCase kRuleCases[] = {
      "the scalar 'tick'"},
     {"SequenceForDocument", "- engine\n- dds\n",
      "cfg.yaml:1:1: (document): expected a mapping (keys: engine, dds, frames, limits, logging, "
-     "producers), "
-     "got a sequence"},
+     "producers, shards), got a sequence"},
+    {"ShardNeedsMarginZero", "engine:\n  margin: 0.5\nshards:\n  map: m.yaml\n",
+     "cfg.yaml:2:11: engine.margin: a shard (shards.map is set) needs margin 0"},
+    {"EmptyShardMap", "shards:\n  map: ''\n",
+     "cfg.yaml:2:8: shards.map: empty: leave the shards section out when not sharded"},
     {"SequenceForInteger", "engine:\n  threads: [1]\n",
      "cfg.yaml:2:12: engine.threads: expected an integer or 'auto', got a sequence"},
     {"MappingForString", "engine:\n  algorithm: {a: 1}\n",

@@ -111,26 +111,30 @@ void RepliesReader(dds_qos_t* qos) {
 Status Connection::Open(const ConnectionOptions& options, std::unique_ptr<Connection>* out) {
   std::unique_ptr<Connection> c(new Connection());
   c->options_ = options;
+  std::unique_ptr<dds::Participant> participant;
   if (Status s = dds::Participant::Create(options.domain, options.cyclone_xml, options.partition,
-                                          &c->participant_);
+                                          &participant);
       !s.ok()) {
     return s;
   }
+  dds::Participant& p = *participant;
+  c->shared_.reset(new Shared{std::move(participant), p, {}, {}});
   *out = std::move(c);
   return Status::Ok();
 }
 
 Status Connection::GetTopic(TopicId id, dds_entity_t* out) {
   const auto index = static_cast<size_t>(id);
-  std::lock_guard<std::mutex> lock(mutex_);
-  if (topics_[index] == 0) {
+  std::lock_guard<std::mutex> lock(shared_->mutex);
+  dds_entity_t& topic = shared_->topics[index];
+  if (topic == 0) {
     const TopicNames& names = options_.topics;
     const std::string* name[] = {&names.updates,  &names.events,    &names.status,
                                  &names.requests, &names.interests, &names.replies};
     static_assert(std::size(name) == kTopicCount);
-    if (Status s = participant_->CreateTopic(*name[index], &topics_[index]); !s.ok()) return s;
+    if (Status s = shared_->participant.CreateTopic(*name[index], &topic); !s.ok()) return s;
   }
-  *out = topics_[index];
+  *out = topic;
   return Status::Ok();
 }
 
@@ -138,14 +142,25 @@ Status Connection::CreateWriter(TopicId id, const dds::Qos& qos, dds::Writer* ou
                                 const std::string* partition) {
   dds_entity_t topic = 0;
   if (Status s = GetTopic(id, &topic); !s.ok()) return s;
-  return dds::Writer::Create(*participant_, topic, qos, out, partition);
+  if (partition == nullptr && scoped_) partition = &options_.partition;
+  return dds::Writer::Create(shared_->participant, topic, qos, out, partition);
 }
 
 Status Connection::CreateReader(TopicId id, const dds::Qos& qos, dds::Reader* out,
                                 dds::WriterLiveliness* liveliness, const std::string* partition) {
   dds_entity_t topic = 0;
   if (Status s = GetTopic(id, &topic); !s.ok()) return s;
-  return dds::Reader::Create(*participant_, topic, qos, out, liveliness, partition);
+  if (partition == nullptr && scoped_) partition = &options_.partition;
+  return dds::Reader::Create(shared_->participant, topic, qos, out, liveliness, partition);
+}
+
+std::unique_ptr<Connection> Connection::Scoped(const std::string& partition) const {
+  std::unique_ptr<Connection> c(new Connection());
+  c->options_ = options_;
+  c->options_.partition = partition;
+  c->scoped_ = true;
+  c->shared_ = shared_;
+  return c;
 }
 
 }  // namespace bp::transport

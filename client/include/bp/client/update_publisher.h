@@ -58,9 +58,24 @@ struct PublisherOptions {
 
 class KeptObjects;
 
-class UpdatePublisher {
+/// What a producer needs of a publisher: UpdatePublisher (one daemon) and ShardedPublisher
+/// (bp/client/sharded.h: a world served by several daemons) both are one.
+class BatchPublisher {
  public:
-  ~UpdatePublisher();
+  virtual ~BatchPublisher() = default;
+  /// Waits until the daemon (every daemon) can receive batches.
+  virtual Status WaitForDaemon(std::chrono::milliseconds timeout) = 0;
+  /// Stamps and publishes batch.
+  virtual Status Publish(wire::UpdateBatch* batch) = 0;
+  /// Restates when a daemon asks for it or restarted (a producer that rests calls it).
+  virtual Status Maintain() = 0;
+  /// Waits until every matched reader acknowledged what was published.
+  virtual Status Flush(std::chrono::milliseconds timeout) = 0;
+};
+
+class UpdatePublisher : public BatchPublisher {
+ public:
+  ~UpdatePublisher() override;
   /// A publisher for producer id (1..65535) on connection (which must outlive it).
   static Status Create(Connection& connection, uint32_t producer, const PublisherOptions& options,
                        std::unique_ptr<UpdatePublisher>* out);
@@ -70,22 +85,22 @@ class UpdatePublisher {
                        std::unique_ptr<UpdatePublisher>* out);
   /// Waits until the daemon's update reader has matched, so that no batch is lost to discovery
   /// (with restate_on_restart, also until the daemon's epoch is known).
-  Status WaitForDaemon(std::chrono::milliseconds timeout);
+  Status WaitForDaemon(std::chrono::milliseconds timeout) override;
   /// Waits until n readers (the daemon, recorders...) have matched.
   Status WaitForReaders(uint32_t n, std::chrono::milliseconds timeout) const {
     return writer_.WaitForReaders(n, timeout);
   }
   /// Stamps (version, producer, batch_seq, sent_time_ns) and publishes batch (after a restate,
   /// if one is due).
-  Status Publish(wire::UpdateBatch* batch);
+  Status Publish(wire::UpdateBatch* batch) override;
   /// With restate_on_restart: reads the daemon's status reports and restates the kept objects if
   /// the daemon restarted. Publish calls it; a producer that may rest for long calls it too.
-  Status Maintain();
+  Status Maintain() override;
   /// Publishes payload bytes as they are (replay of recordings; malformed-input tests). They do
   /// not reach the kept objects.
   Status PublishRaw(std::string_view payload);
   /// Waits until every matched reader acknowledged what was published.
-  Status Flush(std::chrono::milliseconds timeout) const { return writer_.WaitForAcks(timeout); }
+  Status Flush(std::chrono::milliseconds timeout) override { return writer_.WaitForAcks(timeout); }
   uint32_t producer() const { return producer_; }
   /// Batches published so far (restate batches included).
   uint64_t published() const { return seq_; }

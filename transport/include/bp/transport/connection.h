@@ -108,8 +108,11 @@ class Connection {
  public:
   /// Joins the deployment described by options.
   static Status Open(const ConnectionOptions& options, std::unique_ptr<Connection>* out);
-  dds::Participant& participant() { return *participant_; }
-  const dds::Participant& participant() const { return *participant_; }
+  /// A connection sharing this one's participant and topics, whose writers and readers are in
+  /// partition instead (a shard's, ShardPartition). It keeps the participant alive.
+  std::unique_ptr<Connection> Scoped(const std::string& partition) const;
+  dds::Participant& participant() { return shared_->participant; }
+  const dds::Participant& participant() const { return shared_->participant; }
   /// The topic's handle, created on first use; the error names the topic (e.g. "Not Allowed By
   /// Security" when the permissions do not cover it).
   Status GetTopic(TopicId id, dds_entity_t* out);
@@ -126,10 +129,16 @@ class Connection {
 
  private:
   Connection() = default;
+  // What the scoped connections of one participant share.
+  struct Shared {
+    std::unique_ptr<dds::Participant> owned;
+    dds::Participant& participant;
+    std::mutex mutex;                                // guards topics
+    std::array<dds_entity_t, kTopicCount> topics{};  // 0 until created
+  };
   ConnectionOptions options_;
-  std::unique_ptr<dds::Participant> participant_;
-  std::mutex mutex_;                                // guards topics_
-  std::array<dds_entity_t, kTopicCount> topics_{};  // 0 until created
+  bool scoped_ = false;  // writers and readers go to options_.partition explicitly
+  std::shared_ptr<Shared> shared_;
 };
 
 }  // namespace bp::transport

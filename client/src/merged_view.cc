@@ -1,0 +1,325 @@
+// MergedView and ShardedSubscriber (bp/client/sharded.h): one exact event stream out of the
+// streams of a world's shards.
+#include <algorithm>
+#include <thread>
+
+#include "bp/client/sharded.h"
+
+namespace bp::client {
+namespace {
+
+void Append(std::vector<uint64_t>* to, const google::protobuf::RepeatedField<uint64_t>& from) {
+  to->insert(to->end(), from.begin(), from.end());
+}
+
+}  // namespace
+
+MergedView::MergedView(size_t shards) : shards_(shards) {}
+
+void MergedView::Lose(Shard& s, std::string why) {
+  if (s.synced) ++s.resyncs;
+  s.synced = false;
+  s.building = false;
+  s.building_pairs.clear();
+  s.has_base = false;
+  s.base.clear();
+  s.acc_uncollide.clear();
+  s.acc_collide.clear();
+  // Superseded by the snapshot that will follow: it replaces the shard's whole set.
+  s.queue.clear();
+  s.last_loss = std::move(why);
+}
+
+void MergedView::Push(Shard& s, uint64_t key, bool reset, std::vector<uint64_t> uncollide,
+                      std::vector<uint64_t> collide) {
+  Entry e;
+  e.key = key;
+  e.reset = reset;
+  e.uncollide = std::move(uncollide);
+  e.collide = std::move(collide);
+  s.queue.push_back(std::move(e));
+}
+
+bool MergedView::Apply(size_t index, const wire::EventBatch& part) {
+  Shard& s = shards_[index];
+  const bool was_synced = s.synced;
+  const bool first = !s.started;
+  s.started = true;
+  if (part.epoch() != s.epoch) {
+    if (!first) {
+      ++s.restarts;
+      Lose(s, "the shard's daemon restarted (epoch changed)");
+    }
+    s.epoch = part.epoch();
+  } else if (part.sequence() != s.last_seq + 1) {
+    Lose(s, "gap: sequence " + std::to_string(s.last_seq) + " then " +
+                std::to_string(part.sequence()));
+  }
+  s.last_seq = part.sequence();
+
+  if (!s.synced) {
+    if (!part.snapshot()) return !s.building && (first || was_synced);
+    if (part.part() == 0) {
+      s.building = true;
+      s.building_frame = part.frame();
+      s.building_pairs.clear();
+    }
+    if (!s.building || part.frame() != s.building_frame) return false;
+    Append(&s.building_pairs, part.snapshot_pairs());
+    if (!part.last_part()) return false;
+    s.building = false;
+    s.synced = true;
+    if (part.source_producer() != 0) {
+      // The set as of that producer frame (plus what frames closed since by no frame end
+      // changed, which belongs to the next one).
+      Push(s, part.source_frame(), true, {}, std::move(s.building_pairs));
+    } else {
+      // No producer frame closed yet (a daemon just started): the base of the next one.
+      s.has_base = true;
+      s.base = std::move(s.building_pairs);
+    }
+    s.building_pairs.clear();
+    return false;
+  }
+  if (part.snapshot()) return false;  // asked for by another subscriber
+  Append(&s.acc_uncollide, part.uncollide());
+  Append(&s.acc_collide, part.collide());
+  if (!part.last_part() || part.source_producer() == 0 || part.restate()) return false;
+  // A producer's frame end: the shard's state at that frame.
+  if (s.has_base) {
+    // Base plus the events since: as a whole set.
+    PairSet set;
+    for (size_t i = 0; i + 1 < s.base.size(); i += 2) set.insert(Key(s.base[i], s.base[i + 1]));
+    for (size_t i = 0; i + 1 < s.acc_uncollide.size(); i += 2) {
+      set.erase(Key(s.acc_uncollide[i], s.acc_uncollide[i + 1]));
+    }
+    for (size_t i = 0; i + 1 < s.acc_collide.size(); i += 2) {
+      set.insert(Key(s.acc_collide[i], s.acc_collide[i + 1]));
+    }
+    std::vector<uint64_t> flat;
+    flat.reserve(set.size() * 2);
+    for (const Pair& p : set) {
+      flat.push_back(p.first);
+      flat.push_back(p.second);
+    }
+    Push(s, part.source_frame(), true, {}, std::move(flat));
+    s.has_base = false;
+    s.base.clear();
+  } else {
+    Push(s, part.source_frame(), false, std::move(s.acc_uncollide), std::move(s.acc_collide));
+  }
+  s.acc_uncollide.clear();
+  s.acc_collide.clear();
+  return false;
+}
+
+uint64_t MergedView::shard_frame(size_t s) const {
+  const Shard& shard = shards_[s];
+  if (!shard.queue.empty()) return shard.queue.back().key;
+  return emitted_ && shard.synced ? frame_ : 0;
+}
+
+bool MergedView::NextKey(uint64_t* key) const {
+  // The smallest frame some shard has delivered and not merged; a shard whose next entry is a
+  // snapshot of a later frame cannot tell the frames before it: merge up to that one.
+  uint64_t next = UINT64_MAX, reset = 0;
+  for (const Shard& s : shards_) {
+    if (!s.synced || s.queue.empty()) return false;
+    next = std::min(next, s.queue.front().key);
+    if (s.queue.front().reset) reset = std::max(reset, s.queue.front().key);
+  }
+  next = std::max(next, reset);
+  if (emitted_) next = std::max(next, frame_ + 1);
+  // Every shard must have delivered that frame (or a later one).
+  for (const Shard& s : shards_) {
+    if (s.queue.back().key < next) return false;
+  }
+  *key = next;
+  return true;
+}
+
+std::vector<size_t> MergedView::waiting_for() const {
+  uint64_t newest = 0;
+  for (const Shard& s : shards_) {
+    if (!s.queue.empty()) newest = std::max(newest, s.queue.back().key);
+  }
+  std::vector<size_t> out;
+  for (size_t i = 0; i < shards_.size(); ++i) {
+    const Shard& s = shards_[i];
+    if (!s.synced || s.queue.empty() || s.queue.back().key < newest) out.push_back(i);
+  }
+  if (newest == 0) out.clear();  // nothing is due yet
+  return out;
+}
+
+void MergedView::ApplyEntry(size_t index, const Entry& e,
+                            std::unordered_map<Pair, bool, PairHash>* touched) {
+  Shard& s = shards_[index];
+  std::string contradiction;
+  auto add = [&](const Pair& p) {
+    if (!s.held.insert(p).second) {
+      contradiction = "collides a pair it already holds";
+      return;
+    }
+    auto [it, fresh] = counts_.try_emplace(p, 0);
+    touched->try_emplace(p, !fresh);
+    ++it->second;
+  };
+  auto remove = [&](const Pair& p) {
+    if (s.held.erase(p) == 0) {
+      contradiction = "uncollides a pair it does not hold";
+      return;
+    }
+    auto it = counts_.find(p);
+    touched->try_emplace(p, true);
+    if (--it->second == 0) counts_.erase(it);
+  };
+  if (e.reset) {
+    PairSet set;
+    for (size_t i = 0; i + 1 < e.collide.size(); i += 2)
+      set.insert(Key(e.collide[i], e.collide[i + 1]));
+    std::vector<Pair> gone;
+    for (const Pair& p : s.held) {
+      if (set.count(p) == 0) gone.push_back(p);
+    }
+    for (const Pair& p : gone) remove(p);
+    for (const Pair& p : set) {
+      if (s.held.count(p) == 0) add(p);
+    }
+    return;
+  }
+  for (size_t i = 0; i + 1 < e.uncollide.size(); i += 2)
+    remove(Key(e.uncollide[i], e.uncollide[i + 1]));
+  for (size_t i = 0; i + 1 < e.collide.size(); i += 2) add(Key(e.collide[i], e.collide[i + 1]));
+  if (!contradiction.empty()) {
+    // A correct daemon never sends one: resync the shard from a snapshot.
+    ++contradictions_;
+    Lose(s, "frame " + std::to_string(e.key) + " " + contradiction);
+  }
+}
+
+bool MergedView::Next(MergedFrame* out) {
+  uint64_t key = 0;
+  if (!NextKey(&key)) return false;
+  std::unordered_map<Pair, bool, PairHash> touched;  // pair -> held before this frame
+  for (size_t i = 0; i < shards_.size(); ++i) {
+    Shard& s = shards_[i];
+    while (!s.queue.empty() && s.queue.front().key <= key) {
+      Entry e = std::move(s.queue.front());
+      s.queue.pop_front();
+      ApplyEntry(i, e, &touched);  // may clear the queue (a contradiction)
+    }
+  }
+  out->frame = key;
+  out->snapshot = !emitted_;
+  out->skipped = emitted_ && key > frame_ + 1 ? key - frame_ - 1 : 0;
+  out->uncollide.clear();
+  out->collide.clear();
+  std::vector<Pair> unc, col;
+  if (out->snapshot) {
+    col.reserve(counts_.size());
+    for (const auto& [p, n] : counts_) col.push_back(p);
+  } else {
+    for (const auto& [p, before] : touched) {
+      const bool now = counts_.count(p) != 0;
+      if (before && !now) unc.push_back(p);
+      if (!before && now) col.push_back(p);
+    }
+  }
+  std::sort(unc.begin(), unc.end());
+  std::sort(col.begin(), col.end());
+  for (const Pair& p : unc) {
+    out->uncollide.push_back(p.first);
+    out->uncollide.push_back(p.second);
+  }
+  for (const Pair& p : col) {
+    out->collide.push_back(p.first);
+    out->collide.push_back(p.second);
+  }
+  emitted_ = true;
+  frame_ = key;
+  return true;
+}
+
+std::vector<std::pair<uint64_t, uint64_t>> MergedView::SortedPairs() const {
+  std::vector<Pair> out;
+  out.reserve(counts_.size());
+  for (const auto& [p, n] : counts_) out.push_back(p);
+  std::sort(out.begin(), out.end());
+  return out;
+}
+
+Status ShardedSubscriber::Create(Connection& connection, const ShardMap& map, int32_t depth,
+                                 std::unique_ptr<ShardedSubscriber>* out) {
+  std::unique_ptr<ShardedSubscriber> sub(new ShardedSubscriber(map.size()));
+  sub->map_ = &map;
+  sub->connection_ = &connection;
+  for (size_t s = 0; s < map.size(); ++s) {
+    sub->connections_.push_back(
+        connection.Scoped(transport::ShardPartition(connection.options().partition, map.name(s))));
+    std::unique_ptr<EventSubscriber> events;
+    std::unique_ptr<SnapshotRequester> requester;
+    Status st = EventSubscriber::Create(*sub->connections_.back(), depth, &events);
+    if (st.ok()) st = SnapshotRequester::Create(*sub->connections_.back(), &requester);
+    if (!st.ok()) return Status(st.code(), "shard '" + map.name(s) + "': " + st.message());
+    sub->subscribers_.push_back(std::move(events));
+    sub->requesters_.push_back(std::move(requester));
+  }
+  sub->asked_.assign(map.size(), std::chrono::steady_clock::time_point{});
+  *out = std::move(sub);
+  return Status::Ok();
+}
+
+Status ShardedSubscriber::WaitForDaemons(std::chrono::milliseconds timeout) {
+  const auto deadline = std::chrono::steady_clock::now() + timeout;
+  if (Status s = CheckShards(*connection_, *map_, timeout); !s.ok()) return s;
+  for (size_t s = 0; s < subscribers_.size(); ++s) {
+    const auto left = std::max(std::chrono::milliseconds(1),
+                               std::chrono::duration_cast<std::chrono::milliseconds>(
+                                   deadline - std::chrono::steady_clock::now()));
+    Status st = subscribers_[s]->WaitForDaemon(left);
+    if (st.ok()) st = requesters_[s]->WaitForDaemon(left);
+    if (!st.ok()) return Status(st.code(), "shard '" + map_->name(s) + "': " + st.message());
+  }
+  return Status::Ok();
+}
+
+void ShardedSubscriber::Feed(size_t s, const wire::EventBatch& part) {
+  if (view_.Apply(s, part)) asked_[s] = {};  // just lost its sync: ask at once
+}
+
+Status ShardedSubscriber::Poll(std::chrono::milliseconds timeout, std::vector<MergedFrame>* out) {
+  using Clock = std::chrono::steady_clock;
+  const auto deadline = Clock::now() + timeout;
+  for (;;) {
+    bool any = false;
+    for (size_t s = 0; s < subscribers_.size(); ++s) {
+      parts_.clear();
+      if (Status st = subscribers_[s]->Poll(std::chrono::milliseconds(0), &parts_); !st.ok()) {
+        return st;
+      }
+      any = any || !parts_.empty();
+      for (const wire::EventBatch& part : parts_) Feed(s, part);
+    }
+    // A shard without its sync asks for a snapshot, again after a second without one.
+    const auto now = Clock::now();
+    for (size_t s = 0; s < subscribers_.size(); ++s) {
+      if (!view_.wants_snapshot(s) || now - asked_[s] < std::chrono::seconds(1)) continue;
+      if (Status st = requesters_[s]->Request(view_.resyncs(s) > 0 ? "resync" : "join"); !st.ok()) {
+        return Status(st.code(), "shard '" + map_->name(s) + "': " + st.message());
+      }
+      asked_[s] = now;
+      ++requests_;
+    }
+    MergedFrame frame;
+    bool merged = false;
+    while (view_.Next(&frame)) {
+      out->push_back(std::move(frame));
+      merged = true;
+    }
+    if (merged || now >= deadline) return Status::Ok();
+    if (!any) std::this_thread::sleep_for(std::chrono::milliseconds(1));
+  }
+}
+
+}  // namespace bp::client

@@ -1,0 +1,569 @@
+// A world served by three daemons (shards): the shard map, the merging view on hand-made
+// streams, and real processes on loopback: three broadphased, a producer process routing a
+// scene of heavy border traffic through ShardedPublisher, and this process merging the shards'
+// streams, compared with the brute-force oracle frame by frame. Then the same with a shard
+// killed (SIGKILL) and started again mid-scene.
+//
+// The producer is this binary run with --produce (main below), so that the subscriber can
+// generate the very same scene for the oracle.
+#include <cinttypes>
+#include <cmath>
+#include <filesystem>
+#include <fstream>
+#include <random>
+#include <set>
+#include <sstream>
+
+#include "service_test_support.h"
+#include <fcntl.h>
+#include <signal.h>
+#include <sys/wait.h>
+#include <unistd.h>
+
+#include "bp/client/sharded.h"
+#include "bp/transport/shard_map.h"
+
+namespace bp::test {
+namespace {
+
+constexpr uint32_t kDomain = BP_TEST_DOMAIN;
+constexpr uint32_t kProducer = 5;
+
+// Three shards on a 3 x 2 grid of 20 m blocks: a owns the two lower-left blocks, b the right
+// column, c the two upper-left ones, so borders run along x and along y.
+constexpr const char* kMap = R"(dimension: 3
+origin: [-30, -20, -10]
+edge: [20, 20, 20]
+count: [3, 2, 1]
+shards:
+  - name: a
+    blocks: [{from: [0, 0, 0], to: [1, 0, 0]}]
+  - name: b
+    blocks: [{from: [2, 0, 0], to: [2, 1, 0]}]
+  - name: c
+    blocks: [{from: [0, 1, 0], to: [1, 1, 0]}]
+)";
+
+// A scene of heavy border traffic, the same for every seed in the producer and the oracle:
+// boxes oscillating across the borders, boxes larger than a shard, every object crossing at
+// once every 40th frame, teleports between shards and churn every frame.
+class BorderScene {
+ public:
+  explicit BorderScene(uint64_t seed) : random_(seed) {
+    for (int i = 0; i < 150; ++i) AddMover(false);
+    for (int i = 0; i < 3; ++i) AddMover(true);
+  }
+  // The inserts of frame 1.
+  void Initial(FrameOps* ops) {
+    ops->Clear();
+    for (auto& [id, m] : movers_) ops->inserts.push_back(Box(id, m, 1));
+    frame_ = 1;
+  }
+  void Next(FrameOps* ops) {
+    ops->Clear();
+    ++frame_;
+    if (frame_ % 40 == 0) {
+      for (auto& [id, m] : movers_)
+        m.center[0] = m.center[0] + 20 > 35 ? m.center[0] - 50 : m.center[0] + 20;
+    }
+    std::uniform_real_distribution<double> x(-35, 35), y(-25, 25);
+    for (int t = 0; t < 2; ++t) {
+      auto it = std::next(movers_.begin(), static_cast<long>(random_() % movers_.size()));
+      if (!it->second.large) it->second.center = {x(random_), y(random_), 0};
+    }
+    // Churn: one erased, one inserted.
+    auto gone = std::next(movers_.begin(), static_cast<long>(random_() % movers_.size()));
+    if (!gone->second.large) {
+      ops->erases.push_back(gone->first);
+      movers_.erase(gone);
+    }
+    const uint64_t added = AddMover(false);
+    for (auto& [id, m] : movers_) {
+      if (id == added) {
+        ops->inserts.push_back(Box(id, m, frame_));
+      } else {
+        ops->updates.push_back(Box(id, m, frame_));
+      }
+    }
+  }
+  uint64_t frame() const { return frame_; }
+
+ private:
+  struct Mover {
+    std::array<double, 3> center, direction;
+    double amplitude, phase, half;
+    bool large;
+  };
+  uint64_t AddMover(bool large) {
+    std::uniform_real_distribution<double> x(-35, 35), y(-25, 25), u(0, 1);
+    Mover m;
+    m.center = {x(random_), y(random_), 0};
+    const double angle = u(random_) * 6.283185307179586;
+    m.direction = {std::cos(angle), std::sin(angle), 0};
+    m.amplitude = large ? 3 : 4 + 8 * u(random_);
+    m.phase = u(random_) * 6.283185307179586;
+    m.half = large ? 25 : 0.5 + 1.5 * u(random_);
+    m.large = large;
+    movers_[next_id_] = m;
+    return next_id_++;
+  }
+  static SceneBox Box(uint64_t id, const Mover& m, uint64_t frame) {
+    const double s = m.amplitude * std::sin(0.15 * static_cast<double>(frame) + m.phase);
+    SceneBox b;
+    b.id = id;
+    for (size_t a = 0; a < 3; ++a) {
+      const double c = m.center[a] + s * m.direction[a];
+      const double half = a == 2 ? std::min(m.half, 2.0) : m.half;
+      b.lo[a] = static_cast<float>(c - half);
+      b.hi[a] = static_cast<float>(c + half);
+    }
+    b.moves = true;
+    return b;
+  }
+  std::mt19937_64 random_;
+  std::map<uint64_t, Mover> movers_;
+  uint64_t next_id_ = 1;
+  uint64_t frame_ = 0;
+};
+
+transport::ShardMap TestMap() {
+  transport::ShardMap map;
+  EXPECT_TRUE(transport::ShardMap::Parse(kMap, "test map", &map).ok());
+  return map;
+}
+
+TEST(ShardMap, RoutesBoxesToEveryShardTheyTouch) {
+  const transport::ShardMap map = TestMap();
+  ASSERT_EQ(map.size(), 3u);
+  auto route = [&](std::array<double, 3> lo, std::array<double, 3> hi) {
+    return map.Route(lo.data(), hi.data());
+  };
+  EXPECT_EQ(route({-25, -15, 0}, {-24, -14, 1}), 0b001u);            // inside a
+  EXPECT_EQ(route({15, 5, 0}, {16, 6, 1}), 0b010u);                  // inside b
+  EXPECT_EQ(route({-25, 5, 0}, {-24, 6, 1}), 0b100u);                // inside c
+  EXPECT_EQ(route({9, -1, 0}, {11, 1, 0}), 0b111u);                  // on the corner of all three
+  EXPECT_EQ(route({-500, -500, -500}, {-400, -400, -400}), 0b001u);  // beyond the grid
+  EXPECT_EQ(route({-1e30, -1e30, 0}, {1e30, 1e30, 0}), 0b111u);
+  // A border belongs to the block above it; a box touching it from below is in both.
+  EXPECT_EQ(route({5, -5, 0}, {10, -4, 0}), 0b011u);
+  EXPECT_EQ(route({10, -5, 0}, {11, -4, 0}), 0b010u);
+  EXPECT_EQ(route({std::nan(""), 0, 0}, {1, 1, 1}), 0u);
+  EXPECT_EQ(route({2, 0, 0}, {1, 1, 1}), 0u);
+  EXPECT_EQ(map.Find("c"), 2);
+  EXPECT_EQ(map.BlocksOwned(1), 2u);
+  EXPECT_EQ(transport::ShardPartition("p", "b"), "p.shard.b");
+  EXPECT_EQ(transport::ShardPartition("", "b"), "shard.b");
+}
+
+TEST(ShardMap, ProblemsNameTheKeyAndTheLine) {
+  transport::ShardMap map;
+  Status s = transport::ShardMap::Parse(
+      "dimension: 3\norigin: [0, 0, 0]\nedge: [1, -1, 1]\ncount: [2, 1, 1]\nshards:\n"
+      "  - name: a\n    blocks: [{from: [0, 0, 0], to: [0, 0, 0]}]\n",
+      "m.yaml", &map);
+  ASSERT_FALSE(s.ok());
+  EXPECT_NE(s.message().find("m.yaml:3:"), std::string::npos) << s.message();
+  EXPECT_NE(s.message().find("edge"), std::string::npos) << s.message();
+  s = transport::ShardMap::Parse(
+      "dimension: 3\norigin: [0, 0, 0]\nedge: [1, 1, 1]\ncount: [2, 1, 1]\nshards:\n"
+      "  - name: a\n    blocks: [{from: [0, 0, 0], to: [0, 0, 0]}]\n",
+      "m.yaml", &map);
+  ASSERT_FALSE(s.ok());
+  EXPECT_NE(s.message().find("block [1, 0, 0] has no owner"), std::string::npos) << s.message();
+  s = transport::ShardMap::Parse(
+      "dimension: 3\norigin: [0, 0, 0]\nedge: [1, 1, 1]\ncount: [2, 1, 1]\nshards:\n"
+      "  - name: a\n    blocks: [{from: [0, 0, 0], to: [1, 0, 0]}]\n"
+      "  - name: b\n    blocks: [{from: [1, 0, 0], to: [1, 0, 0]}]\n",
+      "m.yaml", &map);
+  ASSERT_FALSE(s.ok());
+  EXPECT_NE(s.message().find("m.yaml:9:"), std::string::npos) << s.message();
+  EXPECT_NE(s.message().find("already owned by 'a'"), std::string::npos) << s.message();
+  // The same map written differently has the same digest.
+  transport::ShardMap one, two;
+  ASSERT_TRUE(transport::ShardMap::Parse(kMap, "one", &one).ok());
+  std::string other = kMap;
+  other.replace(other.find("[-30, -20, -10]"), 15, "[-30.0, -20, -1e1]");
+  ASSERT_TRUE(transport::ShardMap::Parse(other, "two", &two).ok());
+  EXPECT_EQ(one.digest(), two.digest());
+}
+
+// Hand-made shard streams: the parts a daemon would publish.
+struct Stream {
+  uint64_t epoch = 1, seq = 0;
+  wire::EventBatch Part(uint64_t frame, std::vector<uint64_t> uncollide,
+                        std::vector<uint64_t> collide) {
+    wire::EventBatch b;
+    b.set_epoch(epoch);
+    b.set_sequence(++seq);
+    b.set_frame(frame);
+    b.set_last_part(true);
+    b.set_source_producer(kProducer);
+    b.set_source_frame(frame);
+    for (uint64_t k : uncollide) b.add_uncollide(k);
+    for (uint64_t k : collide) b.add_collide(k);
+    return b;
+  }
+  wire::EventBatch Snapshot(uint64_t frame, std::vector<uint64_t> pairs) {
+    wire::EventBatch b = Part(frame, {}, {});
+    b.set_snapshot(true);
+    if (frame == 0) b.set_source_producer(0);
+    for (uint64_t k : pairs) b.add_snapshot_pairs(k);
+    return b;
+  }
+};
+
+TEST(MergedView, APairHandedOverWithinAFrameProducesNoEvent) {
+  client::MergedView view(2);
+  Stream a, b;
+  EXPECT_TRUE(view.Apply(0, a.Snapshot(0, {})) || true);
+  view.Apply(1, b.Snapshot(0, {}));
+  client::MergedFrame f;
+  EXPECT_FALSE(view.Next(&f));
+  view.Apply(0, a.Part(1, {}, {1, 2}));
+  EXPECT_FALSE(view.Next(&f));  // b has not delivered frame 1
+  EXPECT_EQ(view.waiting_for(), std::vector<size_t>{1});
+  view.Apply(1, b.Part(1, {}, {}));
+  ASSERT_TRUE(view.Next(&f));
+  EXPECT_TRUE(f.snapshot);
+  EXPECT_EQ(f.collide, (std::vector<uint64_t>{1, 2}));
+  // Frame 2: (1, 2) moves from a to b; frame 3: both hold it (it straddles the border).
+  view.Apply(1, b.Part(2, {}, {1, 2}));
+  view.Apply(0, a.Part(2, {1, 2}, {3, 4}));
+  ASSERT_TRUE(view.Next(&f));
+  EXPECT_EQ(f.frame, 2u);
+  EXPECT_TRUE(f.uncollide.empty());
+  EXPECT_EQ(f.collide, (std::vector<uint64_t>{3, 4}));
+  view.Apply(0, a.Part(3, {}, {1, 2}));
+  view.Apply(1, b.Part(3, {}, {}));
+  ASSERT_TRUE(view.Next(&f));
+  EXPECT_TRUE(f.uncollide.empty() && f.collide.empty());
+  // Frame 4: a lets go of it, b still holds it: no event; frame 5: b too: an uncollide.
+  view.Apply(0, a.Part(4, {1, 2}, {}));
+  view.Apply(1, b.Part(4, {}, {}));
+  ASSERT_TRUE(view.Next(&f));
+  EXPECT_TRUE(f.uncollide.empty() && f.collide.empty());
+  view.Apply(0, a.Part(5, {}, {}));
+  view.Apply(1, b.Part(5, {1, 2}, {}));
+  ASSERT_TRUE(view.Next(&f));
+  EXPECT_EQ(f.uncollide, (std::vector<uint64_t>{1, 2}));
+  EXPECT_EQ(view.SortedPairs(), (PairList{{3, 4}}));
+  EXPECT_EQ(view.contradictions(), 0u);
+}
+
+TEST(MergedView, AShardThatLostItsSyncHoldsTheStreamBackThenFoldsTheFramesItMissed) {
+  client::MergedView view(2);
+  Stream a, b;
+  view.Apply(0, a.Snapshot(0, {}));
+  view.Apply(1, b.Snapshot(0, {}));
+  client::MergedFrame f;
+  view.Apply(0, a.Part(1, {}, {1, 2}));
+  view.Apply(1, b.Part(1, {}, {5, 6}));
+  ASSERT_TRUE(view.Next(&f));
+  // b restarts: a goes on alone, and nothing is merged until b's snapshot.
+  b.epoch = 2;
+  b.seq = 0;
+  view.Apply(0, a.Part(2, {1, 2}, {}));
+  view.Apply(0, a.Part(3, {}, {7, 8}));
+  EXPECT_TRUE(view.Apply(1, b.Part(1, {}, {})));  // the new daemon: wants a snapshot
+  EXPECT_FALSE(view.Next(&f));
+  EXPECT_EQ(view.waiting_for(), std::vector<size_t>{1});
+  view.Apply(1, b.Snapshot(3, {5, 6, 9, 10}));
+  ASSERT_TRUE(view.Next(&f));
+  EXPECT_EQ(f.frame, 3u);
+  EXPECT_EQ(f.skipped, 1u);
+  EXPECT_EQ(f.uncollide, (std::vector<uint64_t>{1, 2}));
+  EXPECT_EQ(f.collide, (std::vector<uint64_t>{7, 8, 9, 10}));
+  EXPECT_EQ(view.restarts(1), 1u);
+  EXPECT_EQ(view.SortedPairs(), (PairList{{5, 6}, {7, 8}, {9, 10}}));
+}
+
+// --- Real processes ------------------------------------------------------------------------
+
+class ScratchDir {
+ public:
+  ScratchDir()
+      : path_((std::filesystem::temp_directory_path() / ("bp-shard-" + TestPartition())).string()) {
+    std::filesystem::create_directories(path_);
+  }
+  ~ScratchDir() {
+    std::error_code ignored;
+    std::filesystem::remove_all(path_, ignored);
+  }
+  const std::string& path() const { return path_; }
+
+ private:
+  std::string path_;
+};
+
+class Process {
+ public:
+  Process(const std::string& binary, const std::vector<std::string>& args,
+          const std::string& log_path) {
+    pid_ = fork();
+    if (pid_ == 0) {
+      const int fd = open(log_path.c_str(), O_WRONLY | O_CREAT | O_APPEND, 0644);
+      dup2(fd, 2);
+      dup2(fd, 1);
+      std::vector<char*> argv{const_cast<char*>(binary.c_str())};
+      for (auto& a : args) argv.push_back(const_cast<char*>(a.c_str()));
+      argv.push_back(nullptr);
+      execv(binary.c_str(), argv.data());
+      _exit(127);
+    }
+  }
+  ~Process() { Kill(); }
+  void Kill() {
+    if (pid_ > 0 && !exited_) {
+      kill(pid_, SIGKILL);
+      int status = 0;
+      waitpid(pid_, &status, 0);
+      exited_ = true;
+    }
+  }
+  int Wait(std::chrono::milliseconds timeout) {
+    const auto deadline = std::chrono::steady_clock::now() + timeout;
+    while (std::chrono::steady_clock::now() < deadline) {
+      int status = 0;
+      if (waitpid(pid_, &status, WNOHANG) == pid_) {
+        exited_ = true;
+        return WIFEXITED(status) ? WEXITSTATUS(status) : -1;
+      }
+      std::this_thread::sleep_for(10ms);
+    }
+    return -1;
+  }
+
+ private:
+  pid_t pid_ = -1;
+  bool exited_ = false;
+};
+
+std::string ReadFile(const std::string& path) {
+  std::ifstream in(path);
+  std::stringstream s;
+  s << in.rdbuf();
+  return s.str();
+}
+
+std::string SelfExe() { return std::filesystem::read_symlink("/proc/self/exe").string(); }
+
+struct World {
+  ScratchDir dir;
+  std::string config, map_path;
+  service::Config base = TestConfig(kDomain);
+  std::vector<std::unique_ptr<Process>> daemons;
+
+  World() {
+    map_path = dir.path() + "/shards.yaml";
+    std::ofstream(map_path) << kMap;
+    config = dir.path() + "/broadphased.yaml";
+    std::ofstream(config) << "engine:\n  algorithm: grid_dense\n  dimension: 3\n"
+                          << "dds:\n  domain: " << kDomain
+                          << "\n  cyclone_config: " << base.dds.cyclone_config
+                          << "\n  partition: " << base.dds.partition
+                          << "\nlogging:\n  summary_interval_s: 0\nproducers:\n  lease_s: 0\n"
+                          << "shards:\n  map: shards.yaml\n";
+    for (const char* name : {"a", "b", "c"}) daemons.push_back(Start(name));
+  }
+  std::unique_ptr<Process> Start(const std::string& name) {
+    return std::make_unique<Process>(BROADPHASED,
+                                     std::vector<std::string>{"--config", config, "--shard", name},
+                                     dir.path() + "/daemon-" + name + ".log");
+  }
+  std::string Logs() const {
+    std::string out;
+    for (const char* name : {"a", "b", "c"}) {
+      out += "--- daemon " + std::string(name) + ":\n" +
+             ReadFile(dir.path() + "/daemon-" + name + ".log");
+    }
+    return out + "--- producer:\n" + ReadFile(dir.path() + "/producer.log");
+  }
+  std::unique_ptr<Process> Produce(int frames, int rate) {
+    return std::make_unique<Process>(
+        SelfExe(),
+        std::vector<std::string>{"--produce", base.dds.cyclone_config, base.dds.partition, map_path,
+                                 std::to_string(frames), std::to_string(rate)},
+        dir.path() + "/producer.log");
+  }
+};
+
+// Follows the merged stream until frame `last`, comparing each merged frame with the oracle:
+// the set at every frame, and the events too where no frame was folded. on_frame(frame) runs
+// after each merged frame.
+void FollowAndCompare(World& w, client::ShardedSubscriber& sub, uint64_t last,
+                      const std::function<void(uint64_t)>& on_frame, uint64_t* folded) {
+  BorderScene scene(7);
+  Oracle<3> oracle;
+  FrameOps ops;
+  scene.Initial(&ops);
+  oracle.Apply(kProducer, ops);
+  PairList oracle_unc, oracle_col;
+  oracle.Query(&oracle_unc, &oracle_col);
+  std::set<std::pair<uint64_t, uint64_t>> set;
+  std::vector<client::MergedFrame> frames;
+  uint64_t frame = 0;
+  const auto deadline = std::chrono::steady_clock::now() + 90s;
+  while (frame < last) {
+    ASSERT_LT(std::chrono::steady_clock::now(), deadline)
+        << "merged frame " << frame << " of " << last << "; waiting for "
+        << sub.view().waiting_for().size() << " shard(s)\n"
+        << w.Logs();
+    frames.clear();
+    BP_ASSERT_OK(sub.Poll(100ms, &frames));
+    for (const client::MergedFrame& f : frames) {
+      ASSERT_GT(f.frame, frame);
+      PairList unc = client::Pairs(
+          google::protobuf::RepeatedField<uint64_t>(f.uncollide.begin(), f.uncollide.end()));
+      PairList col = client::Pairs(
+          google::protobuf::RepeatedField<uint64_t>(f.collide.begin(), f.collide.end()));
+      if (f.snapshot) set.clear();
+      for (const auto& p : unc)
+        ASSERT_EQ(set.erase(p), 1u) << "frame " << f.frame << " uncollides an absent pair";
+      for (const auto& p : col)
+        ASSERT_TRUE(set.insert(p).second) << "frame " << f.frame << " collides a pair twice";
+      // The oracle up to this frame.
+      bool exact_events = !f.snapshot && f.skipped == 0 && scene.frame() + 1 == f.frame;
+      while (scene.frame() < f.frame) {
+        scene.Next(&ops);
+        oracle.Apply(kProducer, ops);
+        oracle.Query(&oracle_unc, &oracle_col);
+      }
+      if (exact_events) {
+        std::sort(oracle_unc.begin(), oracle_unc.end());
+        std::sort(oracle_col.begin(), oracle_col.end());
+        ASSERT_EQ(unc, oracle_unc) << "uncollides of frame " << f.frame;
+        ASSERT_EQ(col, oracle_col) << "collides of frame " << f.frame;
+      } else {
+        ++*folded;
+      }
+      const PairList expected = oracle.Pairs();
+      ASSERT_EQ(PairList(set.begin(), set.end()), expected) << "the set at frame " << f.frame;
+      frame = f.frame;
+      on_frame(frame);
+    }
+  }
+  EXPECT_EQ(sub.view().contradictions(), 0u);
+}
+
+TEST(ShardProcess, ThreeShardsOnLoopbackMatchTheOracleFrameByFrame) {
+  World w;
+  const transport::ShardMap map = TestMap();
+  std::unique_ptr<transport::Connection> connection;
+  BP_ASSERT_OK(transport::Connection::Open(ClientOptions(w.base), &connection));
+  std::unique_ptr<client::ShardedSubscriber> sub;
+  BP_ASSERT_OK(client::ShardedSubscriber::Create(*connection, map, 1000, &sub));
+  {
+    const Status s = sub->WaitForDaemons(30s);
+    ASSERT_TRUE(s.ok()) << s.ToString() << "\n" << w.Logs();
+  }
+  constexpr int kFrames = 150;
+  auto producer = w.Produce(kFrames, 100);
+  uint64_t folded = 0;
+  FollowAndCompare(
+      w, *sub, kFrames, [](uint64_t) {}, &folded);
+  EXPECT_EQ(folded, 1u) << "only the first merged frame (the join) should be a snapshot";
+  EXPECT_EQ(producer->Wait(30s), 0) << w.Logs();
+  for (size_t s = 0; s < 3; ++s) EXPECT_EQ(sub->view().resyncs(s), 0u) << map.name(s);
+  std::printf("%s", ReadFile(w.dir.path() + "/producer.log").c_str());  // handovers, borders
+}
+
+TEST(ShardProcess, AShardKilledAndStartedAgainIsRestatedAndTheMergedSetStaysExact) {
+  World w;
+  const transport::ShardMap map = TestMap();
+  std::unique_ptr<transport::Connection> connection;
+  BP_ASSERT_OK(transport::Connection::Open(ClientOptions(w.base), &connection));
+  std::unique_ptr<client::ShardedSubscriber> sub;
+  BP_ASSERT_OK(client::ShardedSubscriber::Create(*connection, map, 1000, &sub));
+  {
+    const Status s = sub->WaitForDaemons(30s);
+    ASSERT_TRUE(s.ok()) << s.ToString() << "\n" << w.Logs();
+  }
+  constexpr int kFrames = 200;
+  auto producer = w.Produce(kFrames, 50);
+  uint64_t folded = 0;
+  bool killed = false;
+  FollowAndCompare(
+      w, *sub, kFrames,
+      [&](uint64_t frame) {
+        if (frame < 40 || killed) return;
+        killed = true;
+        w.daemons[1]->Kill();  // SIGKILL
+        std::this_thread::sleep_for(300ms);
+        w.daemons[1] = w.Start("b");
+      },
+      &folded);
+  EXPECT_TRUE(killed);
+  EXPECT_EQ(sub->view().restarts(1), 1u);
+  EXPECT_EQ(producer->Wait(60s), 0) << w.Logs();
+}
+
+// The producer process: the scene through a ShardedPublisher that restates restarted shards.
+int Produce(char** argv) {
+  const std::string xml_path = argv[2], partition = argv[3], map_path = argv[4];
+  const int frames = std::atoi(argv[5]), rate = std::atoi(argv[6]);
+  transport::ConnectionOptions options;
+  options.domain = kDomain;
+  options.partition = partition;
+  if (!transport::ReadTextFile(xml_path, &options.cyclone_xml).ok()) return 3;
+  transport::ShardMap map;
+  if (Status s = transport::ShardMap::Load(map_path, &map); !s.ok()) {
+    std::fprintf(stderr, "producer: %s\n", s.ToString().c_str());
+    return 3;
+  }
+  std::unique_ptr<transport::Connection> connection;
+  std::unique_ptr<client::ShardedPublisher> pub;
+  client::PublisherOptions po;
+  po.restate_on_restart = true;
+  Status s = transport::Connection::Open(options, &connection);
+  if (s.ok()) s = client::ShardedPublisher::Create(*connection, map, kProducer, po, &pub);
+  if (s.ok()) s = pub->WaitForDaemon(30s);
+  if (!s.ok()) {
+    std::fprintf(stderr, "producer: %s\n", s.ToString().c_str());
+    return 3;
+  }
+  BorderScene scene(7);
+  FrameOps ops;
+  wire::UpdateBatch batch;
+  const auto period = std::chrono::microseconds(1000000 / rate);
+  auto next = std::chrono::steady_clock::now();
+  for (int f = 1; f <= frames; ++f) {
+    if (f == 1) {
+      scene.Initial(&ops);
+    } else {
+      scene.Next(&ops);
+    }
+    tools::FillSceneFrame(ops, 3, &batch);
+    batch.set_frame(static_cast<uint64_t>(f));
+    batch.set_end_of_frame(true);
+    for (;;) {
+      s = pub->Publish(&batch);
+      if (s.ok()) break;
+      if (s.code() != StatusCode::kDeadlineExceeded) {
+        std::fprintf(stderr, "producer: frame %d: %s\n", f, s.ToString().c_str());
+        return 1;
+      }
+      std::fprintf(stderr, "producer: frame %d: %s; retrying\n", f, s.ToString().c_str());
+    }
+    next += period;
+    std::this_thread::sleep_until(next);
+  }
+  // Stay a little while: a shard restarted late still gets its restate.
+  for (int i = 0; i < 100; ++i) {
+    if (Status m = pub->Maintain(); !m.ok())
+      std::fprintf(stderr, "producer: %s\n", m.ToString().c_str());
+    std::this_thread::sleep_for(20ms);
+  }
+  s = pub->Flush(10s);
+  std::fprintf(stderr, "producer: %d frames, %" PRIu64 " handovers, %zu border objects: %s\n",
+               frames, pub->handovers(), pub->border_objects(), s.ToString().c_str());
+  return s.ok() ? 0 : 1;
+}
+
+}  // namespace
+}  // namespace bp::test
+
+int main(int argc, char** argv) {
+  if (argc == 7 && std::string(argv[1]) == "--produce") return bp::test::Produce(argv);
+  ::testing::InitGoogleTest(&argc, argv);
+  return RUN_ALL_TESTS();
+}
