@@ -37,13 +37,19 @@ void Daemon::RunFrame(uint32_t source_producer, uint64_t source_frame, uint64_t 
     event_msg_.set_source_frame(source_frame);
     event_msg_.set_source_sent_time_ns(source_sent_ns);
     event_msg_.set_restate(restate);
+    event_msg_.set_resyncing(!resync_.empty());
     event_msg_.set_objects(host_->Objects());
     event_msg_.set_overlaps(WorldOverlaps());
     WriteEventPart();
   });
   PublishInterestEvents(frame, source_producer, source_frame, source_sent_ns);
   frames_.store(frame);
-  if (source_producer != 0 && !restate) {
+  // The key of later snapshots: the producer frame their set is as of. After a restate the set
+  // is as of no frame a producer closed here, until the next one.
+  if (restate) {
+    last_source_producer_ = 0;
+    last_source_frame_ = 0;
+  } else if (source_producer != 0) {
     last_source_producer_ = source_producer;
     last_source_frame_ = source_frame;
   }
@@ -221,6 +227,7 @@ void Daemon::PublishSnapshot() {
     event_msg_.set_sequence(++event_seq_);
     event_msg_.set_source_producer(last_source_producer_);
     event_msg_.set_source_frame(last_source_frame_);
+    event_msg_.set_resyncing(!resync_.empty());
     event_msg_.set_objects(host_->Objects());
     event_msg_.set_overlaps(WorldOverlaps());
     WriteEventPart();

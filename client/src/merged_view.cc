@@ -25,15 +25,20 @@ void MergedView::Lose(Shard& s, std::string why) {
   s.base.clear();
   s.acc_uncollide.clear();
   s.acc_collide.clear();
+  s.net.clear();
   // Superseded by the snapshot that will follow: it replaces the shard's whole set.
   s.queue.clear();
+  s.newest = 0;
+  s.resyncing = false;
   s.last_loss = std::move(why);
 }
 
-void MergedView::Push(Shard& s, uint64_t key, bool reset, std::vector<uint64_t> uncollide,
-                      std::vector<uint64_t> collide) {
+void MergedView::Push(Shard& s, uint64_t key, uint64_t sent_ns, bool reset,
+                      std::vector<uint64_t> uncollide, std::vector<uint64_t> collide) {
   Entry e;
   e.key = key;
+  e.sent_ns = sent_ns;
+  s.newest = std::max(s.newest, key);
   e.reset = reset;
   e.uncollide = std::move(uncollide);
   e.collide = std::move(collide);
@@ -57,44 +62,66 @@ bool MergedView::Apply(size_t index, const wire::EventBatch& part) {
   }
   s.last_seq = part.sequence();
 
-  if (!s.synced) {
-    if (!part.snapshot()) return !s.building && (first || was_synced);
-    if (part.part() == 0) {
-      s.building = true;
-      s.building_frame = part.frame();
-      s.building_pairs.clear();
-    }
+  // A snapshot is taken while unsynced; while synced only when it is of a frame newer than any
+  // the shard delivered (asked for because the shard lagged: parts it published while this
+  // reader was cut off from it never arrive, so no gap shows). Others' snapshots are skipped.
+  if (part.snapshot() && part.part() == 0 &&
+      (!s.synced || (part.source_producer() != 0 && part.source_frame() > s.newest))) {
+    s.building = true;
+    s.building_frame = part.frame();
+    s.building_pairs.clear();
+  }
+  if (!s.synced && !part.snapshot()) return !s.building && (first || was_synced);
+  if (part.snapshot()) {
     if (!s.building || part.frame() != s.building_frame) return false;
     Append(&s.building_pairs, part.snapshot_pairs());
     if (!part.last_part()) return false;
     s.building = false;
     s.synced = true;
-    if (part.source_producer() != 0) {
+    s.acc_uncollide.clear();  // contained in the snapshot
+    s.acc_collide.clear();
+    s.net.clear();
+    s.resyncing = false;
+    s.has_base = false;
+    s.base.clear();
+    if (part.source_producer() != 0 && !part.resyncing()) {
       // The set as of that producer frame (plus what frames closed since by no frame end
       // changed, which belongs to the next one).
-      Push(s, part.source_frame(), true, {}, std::move(s.building_pairs));
+      Push(s, part.source_frame(), 0, true, {}, std::move(s.building_pairs));
     } else {
-      // No producer frame closed yet (a daemon just started): the base of the next one.
+      // No producer frame closed yet (a daemon just started), or the daemon waits for a
+      // producer's restate: the base of the next good frame.
       s.has_base = true;
       s.base = std::move(s.building_pairs);
     }
     s.building_pairs.clear();
     return false;
   }
-  if (part.snapshot()) return false;  // asked for by another subscriber
   Append(&s.acc_uncollide, part.uncollide());
   Append(&s.acc_collide, part.collide());
-  if (!part.last_part() || part.source_producer() == 0 || part.restate()) return false;
+  // A frame while the daemon missed batches of a producer, or one its restate closed (the
+  // frames between the shard's last good one and this may be missing): the next good frame
+  // folds the frames before it.
+  if (part.resyncing() || part.restate()) s.resyncing = true;
+  // A frame of the daemon's own (expiry, restate) or one while it missed batches of a producer
+  // (its set may lack them until the restate) counts into the next good producer frame.
+  if (!part.last_part()) return false;
+  if (part.source_producer() == 0 || part.restate() || part.resyncing()) {
+    FoldFrame(s);
+    return false;
+  }
   // A producer's frame end: the shard's state at that frame.
   if (s.has_base) {
-    // Base plus the events since: as a whole set.
+    // Base plus the changes since: as a whole set.
+    FoldFrame(s);
     PairSet set;
     for (size_t i = 0; i + 1 < s.base.size(); i += 2) set.insert(Key(s.base[i], s.base[i + 1]));
-    for (size_t i = 0; i + 1 < s.acc_uncollide.size(); i += 2) {
-      set.erase(Key(s.acc_uncollide[i], s.acc_uncollide[i + 1]));
-    }
-    for (size_t i = 0; i + 1 < s.acc_collide.size(); i += 2) {
-      set.insert(Key(s.acc_collide[i], s.acc_collide[i + 1]));
+    for (const auto& [p, in] : s.net) {
+      if (in) {
+        set.insert(p);
+      } else {
+        set.erase(p);
+      }
     }
     std::vector<uint64_t> flat;
     flat.reserve(set.size() * 2);
@@ -102,15 +129,47 @@ bool MergedView::Apply(size_t index, const wire::EventBatch& part) {
       flat.push_back(p.first);
       flat.push_back(p.second);
     }
-    Push(s, part.source_frame(), true, {}, std::move(flat));
+    Push(s, part.source_frame(), part.source_sent_time_ns(), true, {}, std::move(flat));
     s.has_base = false;
     s.base.clear();
+  } else if (s.net.empty()) {
+    Push(s, part.source_frame(), part.source_sent_time_ns(), false, std::move(s.acc_uncollide),
+         std::move(s.acc_collide));
+    s.queue.back().fold = s.resyncing;
   } else {
-    Push(s, part.source_frame(), false, std::move(s.acc_uncollide), std::move(s.acc_collide));
+    FoldFrame(s);
+    std::vector<uint64_t> uncollide, collide;
+    for (const auto& [p, in] : s.net) {
+      std::vector<uint64_t>& to = in ? collide : uncollide;
+      to.push_back(p.first);
+      to.push_back(p.second);
+    }
+    Push(s, part.source_frame(), part.source_sent_time_ns(), false, std::move(uncollide),
+         std::move(collide));
+    s.queue.back().fold = s.resyncing;
   }
+  s.net.clear();
+  s.resyncing = false;
   s.acc_uncollide.clear();
   s.acc_collide.clear();
   return false;
+}
+
+void MergedView::FoldFrame(Shard& s) {
+  // Within a frame every uncollide precedes every collide; a pair's changes over frames cancel
+  // in pairs (in then out, or out then in).
+  auto change = [&](uint64_t a, uint64_t b, bool in) {
+    auto [it, fresh] = s.net.try_emplace(Key(a, b), in);
+    if (!fresh && it->second != in) s.net.erase(it);
+  };
+  for (size_t i = 0; i + 1 < s.acc_uncollide.size(); i += 2) {
+    change(s.acc_uncollide[i], s.acc_uncollide[i + 1], false);
+  }
+  for (size_t i = 0; i + 1 < s.acc_collide.size(); i += 2) {
+    change(s.acc_collide[i], s.acc_collide[i + 1], true);
+  }
+  s.acc_uncollide.clear();
+  s.acc_collide.clear();
 }
 
 uint64_t MergedView::shard_frame(size_t s) const {
@@ -126,7 +185,9 @@ bool MergedView::NextKey(uint64_t* key) const {
   for (const Shard& s : shards_) {
     if (!s.synced || s.queue.empty()) return false;
     next = std::min(next, s.queue.front().key);
-    if (s.queue.front().reset) reset = std::max(reset, s.queue.front().key);
+    if (s.queue.front().reset || s.queue.front().fold) {
+      reset = std::max(reset, s.queue.front().key);
+    }
   }
   next = std::max(next, reset);
   if (emitted_) next = std::max(next, frame_ + 1);
@@ -202,15 +263,18 @@ bool MergedView::Next(MergedFrame* out) {
   uint64_t key = 0;
   if (!NextKey(&key)) return false;
   std::unordered_map<Pair, bool, PairHash> touched;  // pair -> held before this frame
+  uint64_t sent_ns = 0;
   for (size_t i = 0; i < shards_.size(); ++i) {
     Shard& s = shards_[i];
     while (!s.queue.empty() && s.queue.front().key <= key) {
       Entry e = std::move(s.queue.front());
       s.queue.pop_front();
+      if (e.key == key) sent_ns = std::max(sent_ns, e.sent_ns);
       ApplyEntry(i, e, &touched);  // may clear the queue (a contradiction)
     }
   }
   out->frame = key;
+  out->sent_time_ns = sent_ns;
   out->snapshot = !emitted_;
   out->skipped = emitted_ && key > frame_ + 1 ? key - frame_ - 1 : 0;
   out->uncollide.clear();
@@ -266,6 +330,7 @@ Status ShardedSubscriber::Create(Connection& connection, const ShardMap& map, in
     sub->requesters_.push_back(std::move(requester));
   }
   sub->asked_.assign(map.size(), std::chrono::steady_clock::time_point{});
+  sub->waited_since_.assign(map.size(), std::chrono::steady_clock::time_point{});
   *out = std::move(sub);
   return Status::Ok();
 }
@@ -301,11 +366,29 @@ Status ShardedSubscriber::Poll(std::chrono::milliseconds timeout, std::vector<Me
       any = any || !parts_.empty();
       for (const wire::EventBatch& part : parts_) Feed(s, part);
     }
-    // A shard without its sync asks for a snapshot, again after a second without one.
+    // A shard without its sync is asked for a snapshot, again after a second without one; so is
+    // one the merged stream has waited on for a second (what it published while this reader
+    // was cut off from it never arrives: a snapshot of a newer frame tells).
     const auto now = Clock::now();
+    std::vector<bool> waited(subscribers_.size(), false);
+    for (size_t s : view_.waiting_for()) waited[s] = true;
     for (size_t s = 0; s < subscribers_.size(); ++s) {
-      if (!view_.wants_snapshot(s) || now - asked_[s] < std::chrono::seconds(1)) continue;
-      if (Status st = requesters_[s]->Request(view_.resyncs(s) > 0 ? "resync" : "join"); !st.ok()) {
+      if (!waited[s]) {
+        waited_since_[s] = {};
+      } else if (waited_since_[s] == Clock::time_point{}) {
+        waited_since_[s] = now;
+      }
+    }
+    for (size_t s = 0; s < subscribers_.size(); ++s) {
+      const bool lagging = waited_since_[s] != Clock::time_point{} &&
+                           now - waited_since_[s] >= std::chrono::seconds(1);
+      if (!(view_.wants_snapshot(s) || lagging) || now - asked_[s] < std::chrono::seconds(1)) {
+        continue;
+      }
+      if (Status st = requesters_[s]->Request(lagging                ? "lagging"
+                                              : view_.resyncs(s) > 0 ? "resync"
+                                                                     : "join");
+          !st.ok()) {
         return Status(st.code(), "shard '" + map_->name(s) + "': " + st.message());
       }
       asked_[s] = now;

@@ -203,9 +203,20 @@ Status ShardedPublisher::SendPending() {
 Status ShardedPublisher::Maintain() {
   if (Status s = SendPending(); !s.ok()) return s;
   for (size_t s = 0; s < shards_.size(); ++s) {
+    const uint64_t restates = shards_[s]->restates();
     if (Status st = shards_[s]->Maintain(); !st.ok()) {
       return Status(st.code(), "shard '" + map_->name(s) + "': " + st.message());
     }
+    if (shards_[s]->restates() == restates || !closed_any_) continue;
+    // The shard was restated between frames: close the last frame there again, so that its
+    // restored set is keyed by that frame (the merge aligns shards by frame number) and
+    // subscribers need not wait for the producer's next frame.
+    wire::UpdateBatch& close = parts_[s];
+    close.Clear();
+    close.set_dim(static_cast<uint32_t>(map_->dimension()));
+    close.set_frame(last_closed_frame_);
+    close.set_end_of_frame(true);
+    if (Status st = shards_[s]->Publish(&close); !st.ok()) pending_[s] = true;
   }
   return Status::Ok();
 }

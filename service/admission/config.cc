@@ -259,8 +259,9 @@ void CheckCrossKeys(YamlReader& r, Config* c) {
     r.Error(*margin_mark, "engine.margin",
             "a shard (shards.map is set) needs margin 0: producers route the boxes as sent");
   }
-  if (auto map_mark = r.MarkOf("shards.map"); map_mark && c->shards.map.empty()) {
-    r.Error(*map_mark, "shards.map", "empty: leave the shards section out when not sharded");
+  if (auto self_mark = r.MarkOf("shards.self");
+      self_mark && c->shards.map.empty() && !c->shards.self.empty()) {
+    r.Error(*self_mark, "shards.self", "needs shards.map (the shard map it names a shard of)");
   }
   // The shipped file spells out every default, tick_ms included; only a changed value means the
   // author expected ticks.
@@ -484,11 +485,9 @@ std::string ConfigToYaml(const Config& c) {
   line(k1, "frame_log", YamlString(c.logging.frame_log));
   y += "producers:\n";
   line(k1, "lease_s", FormatNumber(c.producers.lease_s));
-  if (!c.shards.map.empty()) {
-    y += "shards:\n";
-    line(k1, "map", YamlString(c.shards.map));
-    line(k1, "self", YamlString(c.shards.self));
-  }
+  y += "shards:\n";
+  line(k1, "map", YamlString(c.shards.map));
+  line(k1, "self", YamlString(c.shards.self));
   return y;
 }
 

@@ -271,8 +271,8 @@ const RuleCase kRuleCases[] = {
      "producers, shards), got a sequence"},
     {"ShardNeedsMarginZero", "engine:\n  margin: 0.5\nshards:\n  map: m.yaml\n",
      "cfg.yaml:2:11: engine.margin: a shard (shards.map is set) needs margin 0"},
-    {"EmptyShardMap", "shards:\n  map: ''\n",
-     "cfg.yaml:2:8: shards.map: empty: leave the shards section out when not sharded"},
+    {"ShardSelfWithoutMap", "shards:\n  self: a\n",
+     "cfg.yaml:2:9: shards.self: needs shards.map (the shard map it names a shard of)"},
     {"SequenceForInteger", "engine:\n  threads: [1]\n",
      "cfg.yaml:2:12: engine.threads: expected an integer or 'auto', got a sequence"},
     {"MappingForString", "engine:\n  algorithm: {a: 1}\n",
@@ -764,7 +764,7 @@ TEST(ConfigToYamlTest, WritesEveryKeyPlainWhereUnambiguous) {
         "  file: \"\"\n", "producers:\n", "  lease_s: 10.0\n"}) {
     EXPECT_TRUE(Contains(yaml, line)) << line << "---\n" << yaml;
   }
-  EXPECT_EQ(Lines(yaml).size(), 42u) << yaml;  // 6 sections + topics + 35 keys
+  EXPECT_EQ(Lines(yaml).size(), 45u) << yaml;  // 7 sections + topics + 37 keys
 }
 
 TEST(ConfigNames, AreCanonical) {

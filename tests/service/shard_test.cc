@@ -8,6 +8,7 @@
 // generate the very same scene for the oracle.
 #include <cinttypes>
 #include <cmath>
+#include <cstdlib>
 #include <filesystem>
 #include <fstream>
 #include <random>
@@ -277,6 +278,33 @@ TEST(MergedView, AShardThatLostItsSyncHoldsTheStreamBackThenFoldsTheFramesItMiss
   EXPECT_EQ(view.SortedPairs(), (PairList{{5, 6}, {7, 8}, {9, 10}}));
 }
 
+TEST(MergedView, FramesOfTheDaemonsOwnCountIntoTheNextProducerFrameInOrder) {
+  client::MergedView view(2);
+  Stream a, b;
+  view.Apply(0, a.Snapshot(0, {}));
+  view.Apply(1, b.Snapshot(0, {}));
+  view.Apply(0, a.Part(1, {}, {1, 2}));
+  view.Apply(1, b.Part(1, {}, {}));
+  client::MergedFrame f;
+  ASSERT_TRUE(view.Next(&f));
+  // Shard b: a restate's frame collides (3, 4), an expiry's frame (no producer) uncollides it
+  // again and collides (5, 6); then producer frame 2. Shard b's frames before 2 are folded.
+  wire::EventBatch restate = b.Part(1, {}, {3, 4});
+  restate.set_restate(true);
+  view.Apply(1, restate);
+  wire::EventBatch expiry = b.Part(1, {3, 4}, {5, 6});
+  expiry.set_source_producer(0);
+  view.Apply(1, expiry);
+  view.Apply(1, b.Part(2, {}, {7, 8}));
+  view.Apply(0, a.Part(2, {1, 2}, {}));
+  ASSERT_TRUE(view.Next(&f));
+  EXPECT_EQ(f.frame, 2u);
+  EXPECT_EQ(f.uncollide, (std::vector<uint64_t>{1, 2}));
+  EXPECT_EQ(f.collide, (std::vector<uint64_t>{5, 6, 7, 8}));
+  EXPECT_EQ(view.contradictions(), 0u);
+  EXPECT_EQ(view.SortedPairs(), (PairList{{5, 6}, {7, 8}}));
+}
+
 // --- Real processes ------------------------------------------------------------------------
 
 class ScratchDir {
@@ -345,30 +373,50 @@ std::string ReadFile(const std::string& path) {
   return s.str();
 }
 
+// "local id" of a global key.
+std::string KeyName(uint64_t key) { return std::to_string(key & ((uint64_t{1} << 48) - 1)); }
+
 std::string SelfExe() { return std::filesystem::read_symlink("/proc/self/exe").string(); }
 
+// Three shard daemons a, b, c and, on demand, the producer process. Each process may run in a
+// network namespace of its own (hosts: "" = this one), with its own Cyclone configuration.
 struct World {
   ScratchDir dir;
-  std::string config, map_path;
+  std::string map_path;
   service::Config base = TestConfig(kDomain);
-  std::vector<std::unique_ptr<Process>> daemons;
+  // Per host (a, b, c, producer): its network namespace and Cyclone configuration.
+  std::array<std::string, 4> netns, cyclone;
 
-  World() {
+  World(uint32_t domain = kDomain, std::array<std::string, 4> hosts = {},
+        std::array<std::string, 4> cyclone_xml = {})
+      : netns(hosts), cyclone(cyclone_xml) {
+    base.dds.domain = domain;
     map_path = dir.path() + "/shards.yaml";
     std::ofstream(map_path) << kMap;
-    config = dir.path() + "/broadphased.yaml";
-    std::ofstream(config) << "engine:\n  algorithm: grid_dense\n  dimension: 3\n"
-                          << "dds:\n  domain: " << kDomain
-                          << "\n  cyclone_config: " << base.dds.cyclone_config
+    for (std::string& xml : cyclone) {
+      if (xml.empty()) xml = base.dds.cyclone_config;
+    }
+    for (const char* name : {"a", "b", "c"}) daemons.push_back(Start(name));
+  }
+  std::vector<std::unique_ptr<Process>> daemons;
+  std::unique_ptr<Process> Start(const std::string& name) {
+    const size_t host = static_cast<size_t>(name[0] - 'a');
+    const std::string config = dir.path() + "/broadphased-" + name + ".yaml";
+    std::ofstream(config) << "engine:\n  algorithm: grid_dense\n  dimension: 3\n  threads: 1\n"
+                          << "dds:\n  domain: " << base.dds.domain
+                          << "\n  cyclone_config: " << cyclone[host]
                           << "\n  partition: " << base.dds.partition
                           << "\nlogging:\n  summary_interval_s: 0\nproducers:\n  lease_s: 0\n"
                           << "shards:\n  map: shards.yaml\n";
-    for (const char* name : {"a", "b", "c"}) daemons.push_back(Start(name));
+    return Run(host, BROADPHASED, {"--config", config, "--shard", name},
+               dir.path() + "/daemon-" + name + ".log");
   }
-  std::unique_ptr<Process> Start(const std::string& name) {
-    return std::make_unique<Process>(BROADPHASED,
-                                     std::vector<std::string>{"--config", config, "--shard", name},
-                                     dir.path() + "/daemon-" + name + ".log");
+  // binary args, in host's namespace if it has one.
+  std::unique_ptr<Process> Run(size_t host, const std::string& binary,
+                               std::vector<std::string> args, const std::string& log) {
+    if (netns[host].empty()) return std::make_unique<Process>(binary, args, log);
+    args.insert(args.begin(), {"netns", "exec", netns[host], binary});
+    return std::make_unique<Process>("/usr/sbin/ip", args, log);
   }
   std::string Logs() const {
     std::string out;
@@ -379,11 +427,10 @@ struct World {
     return out + "--- producer:\n" + ReadFile(dir.path() + "/producer.log");
   }
   std::unique_ptr<Process> Produce(int frames, int rate) {
-    return std::make_unique<Process>(
-        SelfExe(),
-        std::vector<std::string>{"--produce", base.dds.cyclone_config, base.dds.partition, map_path,
-                                 std::to_string(frames), std::to_string(rate)},
-        dir.path() + "/producer.log");
+    return Run(3, SelfExe(),
+               {"--produce", std::to_string(base.dds.domain), cyclone[3], base.dds.partition,
+                map_path, std::to_string(frames), std::to_string(rate)},
+               dir.path() + "/producer.log");
   }
 };
 
@@ -437,7 +484,20 @@ void FollowAndCompare(World& w, client::ShardedSubscriber& sub, uint64_t last,
         ++*folded;
       }
       const PairList expected = oracle.Pairs();
-      ASSERT_EQ(PairList(set.begin(), set.end()), expected) << "the set at frame " << f.frame;
+      const PairList got(set.begin(), set.end());
+      if (got != expected) {
+        PairList extra, missing;
+        std::set_difference(got.begin(), got.end(), expected.begin(), expected.end(),
+                            std::back_inserter(extra));
+        std::set_difference(expected.begin(), expected.end(), got.begin(), got.end(),
+                            std::back_inserter(missing));
+        std::string text;
+        for (const auto& [a, b] : extra) text += " +" + KeyName(a) + "-" + KeyName(b);
+        for (const auto& [a, b] : missing) text += " -" + KeyName(a) + "-" + KeyName(b);
+        FAIL() << "the set at frame " << f.frame << " differs from the oracle's:" << text
+               << (f.skipped > 0 ? " (a folded frame)" : "") << "\n"
+               << w.Logs();
+      }
       frame = f.frame;
       on_frame(frame);
     }
@@ -497,12 +557,142 @@ TEST(ShardProcess, AShardKilledAndStartedAgainIsRestatedAndTheMergedSetStaysExac
   EXPECT_EQ(producer->Wait(60s), 0) << w.Logs();
 }
 
+// Hosts joined by a switch: a network namespace per host, each with a veth pair to a bridge in
+// a switch namespace, and one pair from this (the root) namespace, so that this process is a
+// host too. Removed on destruction. Needs root (CAP_NET_ADMIN).
+class TestNetwork {
+ public:
+  static constexpr const char* kSubnet = "10.231.7.";
+  // Creates hosts.size() namespaces; host i has address kSubnet (11 + i), this one kSubnet 1.
+  explicit TestNetwork(size_t hosts) {
+    // What a killed run of this test left behind would take the subnet's route: remove it.
+    (void)std::system(
+        "for n in $(/usr/sbin/ip netns list | grep -o '^bpnet[0-9a-z]*'); do /usr/sbin/ip netns "
+        "del "
+        "$n; done; for l in $(/usr/sbin/ip -br link | grep -o '^bpnet[0-9]*r'); do /usr/sbin/ip "
+        "link del $l; done");
+    std::string tag = "bpnet";
+    tag += std::to_string(getpid() % 100000);
+    sw_ = tag + "sw";
+    ok_ = Ip("netns add " + sw_) && Ip("-n " + sw_ + " link add br0 type bridge") &&
+          Ip("-n " + sw_ + " link set br0 up");
+    for (size_t i = 0; ok_ && i < hosts; ++i) {
+      const std::string ns = tag + "h" + std::to_string(i);
+      std::string port = "p";
+      port += std::to_string(i);
+      hosts_.push_back(ns);
+      ok_ = Ip("netns add " + ns) && Ip("-n " + ns + " link set lo up") &&
+            Ip("-n " + ns + " link add eth0 type veth peer name " + port + " netns " + sw_) &&
+            Ip("-n " + ns + " addr add " + Address(i) + "/24 dev eth0") &&
+            Ip("-n " + ns + " link set eth0 up") &&
+            Ip("-n " + sw_ + " link set " + port + " master br0") &&
+            Ip("-n " + sw_ + " link set " + port + " up");
+    }
+    root_ = tag + "r";
+    ok_ = ok_ && Ip("link add " + root_ + " type veth peer name root netns " + sw_) &&
+          Ip("addr add " + std::string(kSubnet) + "1/24 dev " + root_) &&
+          Ip("link set " + root_ + " up") && Ip("-n " + sw_ + " link set root master br0") &&
+          Ip("-n " + sw_ + " link set root up");
+  }
+  ~TestNetwork() {
+    (void)Ip("link del " + root_);
+    for (const std::string& ns : hosts_) (void)Ip("netns del " + ns);
+    (void)Ip("netns del " + sw_);
+  }
+  bool ok() const { return ok_; }
+  const std::string& host(size_t i) const { return hosts_[i]; }
+  static std::string Address(size_t i) {
+    std::string address = kSubnet;
+    return address += std::to_string(11 + i);
+  }
+  // Cuts (or restores) host i's link at the switch.
+  bool SetLink(size_t i, bool up) {
+    return Ip("-n " + sw_ + " link set p" + std::to_string(i) + (up ? " up" : " down"));
+  }
+  // The shipped LAN configuration for the host at address: its interface, no multicast, and
+  // every host of the network as a unicast peer.
+  std::string CycloneXml(const std::string& address) const {
+    std::string xml;
+    EXPECT_TRUE(transport::ReadTextFile(SourcePath("config/cyclonedds-lan.xml"), &xml).ok());
+    auto replace = [&](const std::string& from, const std::string& to) {
+      const size_t at = xml.find(from);
+      EXPECT_NE(at, std::string::npos) << "cyclonedds-lan.xml has no " << from;
+      if (at != std::string::npos) xml.replace(at, from.size(), to);
+    };
+    std::string peers = "<Peers><Peer address=\"" + std::string(kSubnet) + "1\"/>";
+    for (size_t i = 0; i < hosts_.size(); ++i) peers += "<Peer address=\"" + Address(i) + "\"/>";
+    peers += "</Peers>";
+    replace("<NetworkInterface autodetermine=\"true\"/>",
+            "<NetworkInterface address=\"" + address + "\"/>");
+    replace("<AllowMulticast>spdp</AllowMulticast>", "<AllowMulticast>false</AllowMulticast>");
+    replace("<ParticipantIndex>auto</ParticipantIndex>",
+            "<ParticipantIndex>auto</ParticipantIndex>" + peers);
+    return xml;
+  }
+
+ private:
+  static bool Ip(const std::string& args) {
+    return std::system(("/usr/sbin/ip " + args + " 2>&1").c_str()) == 0;
+  }
+  bool ok_ = false;
+  std::string sw_, root_;
+  std::vector<std::string> hosts_;
+};
+
+// Three daemons and the producer each in a namespace of their own (four hosts), this process
+// subscribing from a fifth, all with the LAN configuration and unicast discovery. Shard b's link
+// is cut at the switch for longer than the participant lease, then restored: the producer
+// restates shard b, and every merged frame still equals the oracle.
+TEST(ShardNetwork, FourHostsOverVethPairsAndACutLinkResyncToTheExactSet) {
+  if (geteuid() != 0) GTEST_SKIP() << "needs root to create network namespaces";
+  TestNetwork net(4);
+  ASSERT_TRUE(net.ok()) << "could not create the namespaces and veth pairs";
+  ScratchDir xml_dir;
+  std::array<std::string, 4> hosts, xml_paths;
+  for (size_t i = 0; i < 4; ++i) {
+    hosts[i] = net.host(i);
+    xml_paths[i] = xml_dir.path() + "/cyclone-" + std::to_string(i) + ".xml";
+    std::ofstream(xml_paths[i]) << net.CycloneXml(TestNetwork::Address(i));
+  }
+  World w(kDomain + 1, hosts, xml_paths);
+  const transport::ShardMap map = TestMap();
+  transport::ConnectionOptions options = ClientOptions(w.base);
+  options.cyclone_xml = net.CycloneXml(std::string(TestNetwork::kSubnet) + "1");
+  std::unique_ptr<transport::Connection> connection;
+  BP_ASSERT_OK(transport::Connection::Open(options, &connection));
+  std::unique_ptr<client::ShardedSubscriber> sub;
+  BP_ASSERT_OK(client::ShardedSubscriber::Create(*connection, map, 1000, &sub));
+  {
+    const Status s = sub->WaitForDaemons(30s);
+    ASSERT_TRUE(s.ok()) << s.ToString() << "\n" << w.Logs();
+  }
+  constexpr int kFrames = 300;
+  auto producer = w.Produce(kFrames, 50);
+  uint64_t folded = 0;
+  bool cut = false;
+  FollowAndCompare(
+      w, *sub, kFrames,
+      [&](uint64_t frame) {
+        if (frame < 40 || cut) return;
+        cut = true;
+        ASSERT_TRUE(net.SetLink(1, false));
+        std::this_thread::sleep_for(4s);  // the LAN lease is 3 s
+        ASSERT_TRUE(net.SetLink(1, true));
+      },
+      &folded);
+  EXPECT_TRUE(cut);
+  // Shard b missed the frames of the cut: they are folded into the frame of its restate.
+  EXPECT_GE(folded, 1u) << "no merged frame folded the frames shard b missed";
+  EXPECT_EQ(producer->Wait(60s), 0) << w.Logs();
+  std::printf("%s", ReadFile(w.dir.path() + "/producer.log").c_str());
+}
+
 // The producer process: the scene through a ShardedPublisher that restates restarted shards.
 int Produce(char** argv) {
-  const std::string xml_path = argv[2], partition = argv[3], map_path = argv[4];
-  const int frames = std::atoi(argv[5]), rate = std::atoi(argv[6]);
+  const std::string xml_path = argv[3], partition = argv[4], map_path = argv[5];
+  const int frames = std::atoi(argv[6]), rate = std::atoi(argv[7]);
   transport::ConnectionOptions options;
-  options.domain = kDomain;
+  options.domain = static_cast<uint32_t>(std::atoi(argv[2]));
   options.partition = partition;
   if (!transport::ReadTextFile(xml_path, &options.cyclone_xml).ok()) return 3;
   transport::ShardMap map;
@@ -563,7 +753,14 @@ int Produce(char** argv) {
 }  // namespace bp::test
 
 int main(int argc, char** argv) {
-  if (argc == 7 && std::string(argv[1]) == "--produce") return bp::test::Produce(argv);
+  if (argc >= 2 && std::string(argv[1]) == "--produce") {
+    if (argc != 8) {
+      std::fprintf(stderr, "usage: %s --produce DOMAIN CYCLONE_XML PARTITION MAP FRAMES RATE\n",
+                   argv[0]);
+      return 2;
+    }
+    return bp::test::Produce(argv);
+  }
   ::testing::InitGoogleTest(&argc, argv);
   return RUN_ALL_TESTS();
 }

@@ -35,6 +35,25 @@ std::unique_ptr<transport::Connection> Connect(const Common& common) {
   return connection;
 }
 
+bool LoadShardMap(const Common& common, const char* command,
+                  std::optional<transport::ShardMap>* map) {
+  map->reset();
+  if (common.config.shards.map.empty()) return true;
+  transport::ShardMap loaded;
+  if (Status s = transport::ShardMap::Load(common.config.shards.map, &loaded); !s.ok()) {
+    std::fprintf(stderr, "bpctl %s: %s\n", command, s.message().c_str());
+    return false;
+  }
+  if (loaded.dimension() != common.config.engine.dimension) {
+    std::fprintf(stderr, "bpctl %s: shard map %s is %d-D but engine.dimension is %d\n", command,
+                 common.config.shards.map.c_str(), loaded.dimension(),
+                 common.config.engine.dimension);
+    return false;
+  }
+  *map = std::move(loaded);
+  return true;
+}
+
 Status WaitInterruptibly(double timeout_s,
                          const std::function<Status(std::chrono::milliseconds)>& wait) {
   const auto start = std::chrono::steady_clock::now();

@@ -4,6 +4,7 @@
 
 #include "common.h"
 
+#include "bp/client/sharded.h"
 #include "bp/client/update_publisher.h"
 #include "bp/tools/scene_frame.h"
 
@@ -12,7 +13,7 @@ namespace {
 
 // Publishes ops as one frame in batches of at most max_items items; the last closes the frame.
 // Retries a batch the daemon's back-pressure refused; false when stopped or on a hard error.
-bool PublishFrame(client::UpdatePublisher& pub, const workload::FrameOps& ops, int dim,
+bool PublishFrame(client::BatchPublisher& pub, const workload::FrameOps& ops, int dim,
                   uint64_t frame, uint64_t max_items, uint64_t* retries) {
   wire::UpdateBatch batch;
   size_t e = 0, u = 0, i = 0;
@@ -66,16 +67,26 @@ int Scene(const Common& common, const SceneOptions& options) {
   publisher_options.restate_on_restart = options.restate;
   publisher_options.restate_batch_items =
       static_cast<uint32_t>(std::min<uint64_t>(max_items, UINT32_MAX));
-  std::unique_ptr<client::UpdatePublisher> pub;
-  if (Status s =
-          client::UpdatePublisher::Create(*connection, options.producer, publisher_options, &pub);
-      !s.ok()) {
-    std::fprintf(stderr, "bpctl scene: %s\n", s.ToString().c_str());
+  std::optional<transport::ShardMap> map;
+  if (!LoadShardMap(common, "scene", &map)) return 2;
+  // One daemon, or every shard of the world (routed by the client library).
+  std::unique_ptr<client::UpdatePublisher> single;
+  std::unique_ptr<client::ShardedPublisher> sharded;
+  Status created = map ? client::ShardedPublisher::Create(*connection, *map, options.producer,
+                                                          publisher_options, &sharded)
+                       : client::UpdatePublisher::Create(*connection, options.producer,
+                                                         publisher_options, &single);
+  if (!created.ok()) {
+    std::fprintf(stderr, "bpctl scene: %s\n", created.ToString().c_str());
     return 1;
   }
-  if (Status s = WaitInterruptibly(
-          common.wait_s,
-          [&](std::chrono::milliseconds t) { return pub->WaitForReaders(options.readers, t); });
+  client::BatchPublisher* pub =
+      map ? static_cast<client::BatchPublisher*>(sharded.get()) : single.get();
+  if (Status s = WaitInterruptibly(common.wait_s,
+                                   [&](std::chrono::milliseconds t) {
+                                     return map ? sharded->WaitForDaemon(t)
+                                                : single->WaitForReaders(options.readers, t);
+                                   });
       !s.ok()) {
     std::fprintf(stderr, "bpctl scene: no daemon on domain %u partition '%s' (%s)\n",
                  common.config.dds.domain, common.config.dds.partition.c_str(),
@@ -91,8 +102,8 @@ int Scene(const Common& common, const SceneOptions& options) {
   }
   // The daemon's epoch before the first frame (else the first status report would look like a
   // restart and cost a restate of everything).
-  for (int i = 0; options.restate && i < 200 && pub->daemon_epoch() == 0; ++i) {
-    (void)pub->Maintain();
+  for (int i = 0; options.restate && single && i < 200 && single->daemon_epoch() == 0; ++i) {
+    (void)single->Maintain();
     std::this_thread::sleep_for(std::chrono::milliseconds(5));
   }
   workload::Scene scene(p);
@@ -144,6 +155,18 @@ int Scene(const Common& common, const SceneOptions& options) {
     scene.NextFrame(&ops);
   }
   (void)pub->Flush(std::chrono::seconds(5));
+  auto restates = [&] {
+    if (single) return single->restates();
+    uint64_t n = 0;
+    for (size_t i = 0; i < sharded->shards(); ++i) n += sharded->shard(i).restates();
+    return n;
+  };
+  if (sharded && !options.quiet) {
+    std::fprintf(stderr,
+                 "bpctl scene: %zu shards, %zu of %zu objects on a border, %llu handovers\n",
+                 sharded->shards(), sharded->border_objects(), sharded->objects(),
+                 static_cast<unsigned long long>(sharded->handovers()));
+  }
   if (!options.quiet) {
     const double seconds = SecondsSince(start);
     std::fprintf(stderr,
@@ -152,7 +175,7 @@ int Scene(const Common& common, const SceneOptions& options) {
                  static_cast<unsigned long long>(frame), seconds,
                  static_cast<double>(frame) / std::max(seconds, 1e-9),
                  static_cast<unsigned long long>(late),
-                 static_cast<unsigned long long>(pub->restates()));
+                 static_cast<unsigned long long>(restates()));
   }
   return failed ? 1 : 0;
 }

@@ -35,6 +35,9 @@ const char* HealthName(wire::Health h) {
 }  // namespace
 
 int Watch(const Common& common, const WatchOptions& options) {
+  std::optional<transport::ShardMap> map;
+  if (!LoadShardMap(common, "watch", &map)) return 2;
+  if (map) return WatchSharded(common, options, *map);
   struct CloseFile {
     void operator()(std::FILE* f) const { (void)std::fclose(f); }
   };
@@ -331,77 +334,124 @@ int Watch(const Common& common, const WatchOptions& options) {
   return log_failed ? 1 : 0;
 }
 
+namespace {
+
+void PrintReport(const wire::DaemonStatus& r) {
+  std::printf(
+      "%s: %s, epoch %016llx, engine %s %u-D %s, frame %llu, objects %llu, overlaps %llu, "
+      "producers %u (%llu expired), interests %u, rejected %llu, event write failures %llu\n",
+      r.daemon().c_str(), HealthName(r.health()), static_cast<unsigned long long>(r.epoch()),
+      r.engine().c_str(), r.dim(), r.coordinate().c_str(),
+      static_cast<unsigned long long>(r.frame()), static_cast<unsigned long long>(r.objects()),
+      static_cast<unsigned long long>(r.overlaps()), r.producers(),
+      static_cast<unsigned long long>(r.producers_expired()), r.interests(),
+      static_cast<unsigned long long>(r.rejected_total()),
+      static_cast<unsigned long long>(r.event_write_failures()));
+  if (r.has_shard()) {
+    std::printf("  shard '%s' (%u of %u, %llu blocks), map digest %016llx\n",
+                r.shard().name().c_str(), r.shard().index() + 1, r.shard().count(),
+                static_cast<unsigned long long>(r.shard().blocks_owned()),
+                static_cast<unsigned long long>(r.shard().map_digest()));
+  }
+  if (r.has_interval() && r.interval().seconds() > 0) {
+    const auto& i = r.interval();
+    std::printf(
+        "  last %.1f s: %.1f frames/s, %.0f updates/s, %.0f events/s, frame p50 %.3f ms p99 "
+        "%.3f ms max %.3f ms\n",
+        i.seconds(), static_cast<double>(i.frames()) / i.seconds(),
+        static_cast<double>(i.updates()) / i.seconds(),
+        static_cast<double>(i.events()) / i.seconds(), i.frame_ms_p50(), i.frame_ms_p99(),
+        i.frame_ms_max());
+    std::printf(
+        "  frame stages p50/p99: ingest %.3f/%.3f ms, query %.3f/%.3f ms, publish %.3f/%.3f ms\n",
+        i.ingest_ms_p50(), i.ingest_ms_p99(), i.query_ms_p50(), i.query_ms_p99(),
+        i.publish_ms_p50(), i.publish_ms_p99());
+  }
+  for (const auto& j : r.rejections()) {
+    std::printf("  rejected (producer %u, frame %llu): %s\n", j.producer(),
+                static_cast<unsigned long long>(j.frame()), j.message().c_str());
+  }
+  for (const auto& j : r.interest_refusals()) {
+    std::printf("  interest refused (client %016llx): %s\n",
+                static_cast<unsigned long long>(j.client()), j.message().c_str());
+  }
+  if (r.rejections_not_listed() > 0) {
+    std::printf("  ... and %llu more rejections\n",
+                static_cast<unsigned long long>(r.rejections_not_listed()));
+  }
+}
+
+}  // namespace
+
 int ShowStatus(const Common& common, const StatusOptions& options) {
+  std::optional<transport::ShardMap> map;
+  if (!LoadShardMap(common, "status", &map)) return 2;
   auto connection = Connect(common);
   if (!connection) return 1;
-  std::unique_ptr<client::StatusSubscriber> sub;
-  if (Status s = client::StatusSubscriber::Create(*connection, 64, &sub); !s.ok()) {
-    std::fprintf(stderr, "bpctl status: %s\n", s.ToString().c_str());
-    return 1;
+  // One daemon, or one status topic per shard (each in its shard's partition).
+  std::vector<std::string> names{""};
+  std::vector<std::unique_ptr<transport::Connection>> scoped;
+  std::vector<std::unique_ptr<client::StatusSubscriber>> subs;
+  if (map) {
+    names.clear();
+    for (size_t i = 0; i < map->size(); ++i) {
+      names.push_back(map->name(i));
+      scoped.push_back(
+          connection->Scoped(transport::ShardPartition(common.config.dds.partition, map->name(i))));
+    }
   }
-  const auto start = std::chrono::steady_clock::now();
-  bool any = false;
-  std::vector<wire::DaemonStatus> reports;
-  while (!StopRequested()) {
-    if (!options.follow && SecondsSince(start) >= options.timeout_s) break;
-    reports.clear();
-    if (Status s = sub->Poll(std::chrono::milliseconds(100), &reports); !s.ok()) {
+  for (size_t i = 0; i < names.size(); ++i) {
+    std::unique_ptr<client::StatusSubscriber> sub;
+    if (Status s = client::StatusSubscriber::Create(map ? *scoped[i] : *connection, 64, &sub);
+        !s.ok()) {
       std::fprintf(stderr, "bpctl status: %s\n", s.ToString().c_str());
       return 1;
     }
-    // Without --follow only the newest report matters (a late joiner receives the last 16).
-    const size_t first = options.follow || reports.empty() ? 0 : reports.size() - 1;
-    for (size_t k = first; k < reports.size(); ++k) {
-      const wire::DaemonStatus& r = reports[k];
-      any = true;
-      std::printf(
-          "%s: %s, epoch %016llx, engine %s %u-D %s, frame %llu, objects %llu, overlaps %llu, "
-          "producers %u (%llu expired), interests %u, rejected %llu, event write failures "
-          "%llu\n",
-          r.daemon().c_str(), HealthName(r.health()), static_cast<unsigned long long>(r.epoch()),
-          r.engine().c_str(), r.dim(), r.coordinate().c_str(),
-          static_cast<unsigned long long>(r.frame()), static_cast<unsigned long long>(r.objects()),
-          static_cast<unsigned long long>(r.overlaps()), r.producers(),
-          static_cast<unsigned long long>(r.producers_expired()), r.interests(),
-          static_cast<unsigned long long>(r.rejected_total()),
-          static_cast<unsigned long long>(r.event_write_failures()));
-      if (r.has_interval() && r.interval().seconds() > 0) {
-        const auto& i = r.interval();
-        std::printf(
-            "  last %.1f s: %.1f frames/s, %.0f updates/s, %.0f events/s, frame p50 %.3f "
-            "ms p99 %.3f ms max %.3f ms\n",
-            i.seconds(), static_cast<double>(i.frames()) / i.seconds(),
-            static_cast<double>(i.updates()) / i.seconds(),
-            static_cast<double>(i.events()) / i.seconds(), i.frame_ms_p50(), i.frame_ms_p99(),
-            i.frame_ms_max());
-        std::printf(
-            "  frame stages p50/p99: ingest %.3f/%.3f ms, query %.3f/%.3f ms, publish %.3f/%.3f "
-            "ms\n",
-            i.ingest_ms_p50(), i.ingest_ms_p99(), i.query_ms_p50(), i.query_ms_p99(),
-            i.publish_ms_p50(), i.publish_ms_p99());
+    subs.push_back(std::move(sub));
+  }
+  const auto start = std::chrono::steady_clock::now();
+  std::vector<bool> heard(names.size(), false);
+  std::vector<wire::DaemonStatus> reports;
+  while (!StopRequested()) {
+    const bool all = std::find(heard.begin(), heard.end(), false) == heard.end();
+    if (all && !options.follow) break;
+    if (!options.follow && SecondsSince(start) >= options.timeout_s) break;
+    for (size_t i = 0; i < subs.size(); ++i) {
+      reports.clear();
+      if (Status s = subs[i]->Poll(std::chrono::milliseconds(100 / subs.size()), &reports);
+          !s.ok()) {
+        std::fprintf(stderr, "bpctl status: %s\n", s.ToString().c_str());
+        return 1;
       }
-      for (const auto& j : r.rejections()) {
-        std::printf("  rejected (producer %u, frame %llu): %s\n", j.producer(),
-                    static_cast<unsigned long long>(j.frame()), j.message().c_str());
-      }
-      for (const auto& j : r.interest_refusals()) {
-        std::printf("  interest refused (client %016llx): %s\n",
-                    static_cast<unsigned long long>(j.client()), j.message().c_str());
-      }
-      if (r.rejections_not_listed() > 0) {
-        std::printf("  ... and %llu more rejections\n",
-                    static_cast<unsigned long long>(r.rejections_not_listed()));
+      // Without --follow only the newest report matters (a late joiner receives the last 16).
+      if (!options.follow && heard[i]) continue;
+      const size_t first = options.follow || reports.empty() ? 0 : reports.size() - 1;
+      for (size_t k = first; k < reports.size(); ++k) {
+        heard[i] = true;
+        if (map) std::printf("shard %s: ", names[i].c_str());
+        PrintReport(reports[k]);
+        if (map && reports[k].shard().map_digest() != map->digest()) {
+          std::printf("  WARNING: this daemon serves another shard map than %s\n",
+                      common.config.shards.map.c_str());
+        }
       }
     }
     std::fflush(stdout);
-    if (any && !options.follow) break;
   }
-  if (!any) {
-    std::fprintf(stderr, "bpctl status: no report from a daemon on domain %u partition '%s'\n",
-                 common.config.dds.domain, common.config.dds.partition.c_str());
-    return 1;
+  int rc = 0;
+  for (size_t i = 0; i < names.size(); ++i) {
+    if (heard[i]) continue;
+    rc = 1;
+    if (map) {
+      std::fprintf(stderr, "bpctl status: no report from shard '%s' (domain %u partition '%s')\n",
+                   names[i].c_str(), common.config.dds.domain,
+                   transport::ShardPartition(common.config.dds.partition, names[i]).c_str());
+    } else {
+      std::fprintf(stderr, "bpctl status: no report from a daemon on domain %u partition '%s'\n",
+                   common.config.dds.domain, common.config.dds.partition.c_str());
+    }
   }
-  return 0;
+  return rc;
 }
 
 }  // namespace bp::bpctl

@@ -121,6 +121,9 @@ struct MergedFrame {
   std::vector<uint64_t> uncollide, collide;
   /// Frames folded into this one (a shard's snapshot skipped them): frame - previous frame - 1.
   uint64_t skipped = 0;
+  /// The producer's send time of the frame (UpdateBatch.sent_time_ns; the latest over the
+  /// shards' frame-closing batches), 0 if unknown: for update->event latency.
+  uint64_t sent_time_ns = 0;
 };
 
 class MergedView {
@@ -165,12 +168,17 @@ class MergedView {
   // A state change of one shard: a frame's events, or (reset) its whole set.
   struct Entry {
     uint64_t key = 0;
+    uint64_t sent_ns = 0;
     bool reset = false;
+    // The shard's frames before this one are unknown (it missed batches and was restated): the
+    // merge cannot produce frames before key from it, as after a reset.
+    bool fold = false;
     std::vector<uint64_t> uncollide, collide;  // events (reset: collide holds the set)
   };
   struct Shard {
     bool started = false, synced = false;
     uint64_t epoch = 0, last_seq = 0;
+    uint64_t newest = 0;  // the newest frame delivered (queued or merged)
     // Snapshot being collected.
     bool building = false;
     uint64_t building_frame = 0;
@@ -179,15 +187,19 @@ class MergedView {
     // frames closed by no producer's frame end (expiries, restates), counted into the next one.
     bool has_base = false;
     std::vector<uint64_t> base;
-    std::vector<uint64_t> acc_uncollide, acc_collide;
+    std::vector<uint64_t> acc_uncollide, acc_collide;  // the current frame's parts
+    std::unordered_map<Pair, bool, PairHash> net;      // earlier frames' net change: true = in
+    bool resyncing = false;  // a frame flagged EventBatch.resyncing since the last keyed one
     std::deque<Entry> queue;
     PairSet held;  // the pairs this shard contributes to counts_
     uint64_t resyncs = 0, restarts = 0;
     std::string last_loss;
   };
   void Lose(Shard& s, std::string why);
-  void Push(Shard& s, uint64_t key, bool reset, std::vector<uint64_t> uncollide,
+  void Push(Shard& s, uint64_t key, uint64_t sent_ns, bool reset, std::vector<uint64_t> uncollide,
             std::vector<uint64_t> collide);
+  // Counts the current frame's events into the shard's net change of the frames so far.
+  static void FoldFrame(Shard& s);
   // The frame the next merged frame can be (false: some shard has not delivered it).
   bool NextKey(uint64_t* key) const;
   void ApplyEntry(size_t s, const Entry& e, std::unordered_map<Pair, bool, PairHash>* touched);
@@ -222,6 +234,7 @@ class ShardedSubscriber {
   std::vector<std::unique_ptr<EventSubscriber>> subscribers_;
   std::vector<std::unique_ptr<SnapshotRequester>> requesters_;
   std::vector<std::chrono::steady_clock::time_point> asked_;
+  std::vector<std::chrono::steady_clock::time_point> waited_since_;  // {}: not waited on
   MergedView view_;
   uint64_t requests_ = 0;
   std::vector<wire::EventBatch> parts_;
