@@ -44,9 +44,9 @@ void Daemon::RunFrame(uint32_t source_producer, uint64_t source_frame, uint64_t 
   });
   PublishInterestEvents(frame, source_producer, source_frame, source_sent_ns);
   frames_.store(frame);
-  // The key of later snapshots: the producer frame their set is as of. After a restate the set
-  // is as of no frame a producer closed here, until the next one.
-  if (restate) {
+  // The key of later snapshots: the producer frame their set is as of. After a restate, an
+  // expiry, a tick or a stop the set is as of no frame a producer closed, until the next one.
+  if (restate || source_producer == 0) {
     last_source_producer_ = 0;
     last_source_frame_ = 0;
   } else if (source_producer != 0) {

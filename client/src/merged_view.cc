@@ -51,9 +51,14 @@ bool MergedView::Apply(size_t index, const wire::EventBatch& part) {
   const bool first = !s.started;
   s.started = true;
   if (part.epoch() != s.epoch) {
+    if (std::find(s.retired.begin(), s.retired.end(), part.epoch()) != s.retired.end()) {
+      return false;  // a late part of a daemon already replaced
+    }
     if (!first) {
       ++s.restarts;
       Lose(s, "the shard's daemon restarted (epoch changed)");
+      s.retired.push_back(s.epoch);
+      if (s.retired.size() > 16) s.retired.erase(s.retired.begin());
     }
     s.epoch = part.epoch();
   } else if (part.sequence() != s.last_seq + 1) {

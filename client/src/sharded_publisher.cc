@@ -92,7 +92,8 @@ size_t Lowest(ShardMap::Mask mask) { return mask == 0 ? 0 : size_t(std::countr_z
 
 }  // namespace
 
-Status CheckShards(Connection& connection, const ShardMap& map, std::chrono::milliseconds timeout) {
+Status CheckShards(Connection& connection, const ShardMap& map, std::chrono::milliseconds timeout,
+                   std::string* coordinate) {
   const auto deadline = std::chrono::steady_clock::now() + timeout;
   std::vector<wire::DaemonStatus> reports;
   for (size_t s = 0; s < map.size(); ++s) {
@@ -118,6 +119,7 @@ Status CheckShards(Connection& connection, const ShardMap& map, std::chrono::mil
       for (const wire::DaemonStatus& r : reports) {
         if (r.health() == wire::STOPPING) continue;
         heard = true;
+        if (coordinate != nullptr) *coordinate = r.coordinate();
         if (r.shard().name().empty()) {
           return Status(StatusCode::kInvalidArgument,
                         "daemon " + r.daemon() + " in the partition of shard '" + map.name(s) +
@@ -166,7 +168,11 @@ Status ShardedPublisher::Create(Connection& connection, const ShardMap& map, uin
 
 Status ShardedPublisher::WaitForDaemon(std::chrono::milliseconds timeout) {
   const auto deadline = std::chrono::steady_clock::now() + timeout;
-  if (Status s = CheckShards(*connection_, *map_, timeout); !s.ok()) return s;
+  std::string coordinate;
+  if (Status s = CheckShards(*connection_, *map_, timeout, &coordinate); !s.ok()) return s;
+  coordinate_ = coordinate == "double"  ? Coordinate::kDouble
+                : coordinate == "int32" ? Coordinate::kInt32
+                                        : Coordinate::kFloat;
   for (size_t s = 0; s < shards_.size(); ++s) {
     const auto left = std::max(std::chrono::milliseconds(1),
                                std::chrono::duration_cast<std::chrono::milliseconds>(
@@ -207,7 +213,7 @@ Status ShardedPublisher::Maintain() {
     if (Status st = shards_[s]->Maintain(); !st.ok()) {
       return Status(st.code(), "shard '" + map_->name(s) + "': " + st.message());
     }
-    if (shards_[s]->restates() == restates || !closed_any_) continue;
+    if (shards_[s]->restates() == restates || !closed_any_ || mid_frame_) continue;
     // The shard was restated between frames: close the last frame there again, so that its
     // restored set is keyed by that frame (the merge aligns shards by frame number) and
     // subscribers need not wait for the producer's next frame.
@@ -274,11 +280,26 @@ Status ShardedPublisher::Publish(wire::UpdateBatch* batch) {
     }
     return it->second;
   };
-  auto route = [&](const wire::BoxArray& a, int i) {
+  // The shards of box i of a, or 0 when the daemons refuse the box (not finite, lo > hi, out
+  // of the daemons' coordinate range, not integral for int32 daemons): it then goes unchanged
+  // to one shard, which reports it, and the router does not place it.
+  auto route = [&](const wire::BoxArray& a, int i) -> ShardMap::Mask {
     Corners c = Read(a, i, k);
     for (int d = 0; d < k; ++d) {
-      c.lo[size_t(d)] = Down(c.lo[size_t(d)]);
-      c.hi[size_t(d)] = Up(c.hi[size_t(d)]);
+      double& lo = c.lo[size_t(d)];
+      double& hi = c.hi[size_t(d)];
+      if (!std::isfinite(lo) || !std::isfinite(hi) || lo > hi) return 0;
+      if (coordinate_ == Coordinate::kFloat) {
+        constexpr double kMax = static_cast<double>(FLT_MAX);
+        if (lo < -kMax || hi > kMax) return 0;
+        lo = Down(lo);
+        hi = Up(hi);
+      } else if (coordinate_ == Coordinate::kInt32) {
+        if (std::trunc(lo) != lo || std::trunc(hi) != hi || lo < -2147483648.0 ||
+            hi > 2147483647.0) {
+          return 0;
+        }
+      }
     }
     return map_->Route(c.lo.data(), c.hi.data());
   };
@@ -349,12 +370,13 @@ Status ShardedPublisher::Publish(wire::UpdateBatch* batch) {
     part.set_frame(batch->frame());
     part.set_end_of_frame(batch->end_of_frame());
   }
+  // Attributes travel only in parts where some insert has them (then for every insert there).
+  std::vector<std::vector<Placed>> attributes(parts_.size());
+  std::vector<bool> with_attributes(parts_.size(), false);
   auto add_insert = [&](size_t s, const wire::BoxArray& from, int i, const Placed& p) {
-    wire::BoxArray* to = parts_[s].mutable_inserts();
-    CopyBox(from, i, k, wide, to);
-    to->add_static_flags(p.is_static);
-    to->add_category(p.category);
-    to->add_mask(p.mask);
+    CopyBox(from, i, k, wide, parts_[s].mutable_inserts());
+    attributes[s].push_back(p);
+    with_attributes[s] = with_attributes[s] || p.has_attributes;
   };
   for (const auto& [id, n] : net) {
     const ShardMap::Mask before = n.was_alive ? n.before.shards : 0;
@@ -377,12 +399,24 @@ Status ShardedPublisher::Publish(wire::UpdateBatch* batch) {
       part.add_erases(batch->erases(r.index));
     } else if (r.op == 1) {
       Placed p;
+      p.has_attributes =
+          inserts.static_flags_size() + inserts.category_size() + inserts.mask_size() > 0;
       if (inserts.static_flags_size() > 0) p.is_static = inserts.static_flags(r.index);
       if (inserts.category_size() > 0) p.category = inserts.category(r.index);
       if (inserts.mask_size() > 0) p.mask = inserts.mask(r.index);
       add_insert(r.shard, inserts, r.index, p);
     } else {
       CopyBox(updates, r.index, k, wide, part.mutable_updates());
+    }
+  }
+
+  for (size_t s = 0; s < parts_.size(); ++s) {
+    if (!with_attributes[s]) continue;
+    wire::BoxArray* to = parts_[s].mutable_inserts();
+    for (const Placed& p : attributes[s]) {
+      to->add_static_flags(p.is_static);
+      to->add_category(p.category);
+      to->add_mask(p.mask);
     }
   }
 
@@ -412,6 +446,7 @@ Status ShardedPublisher::Publish(wire::UpdateBatch* batch) {
     closed_any_ = true;
     last_closed_frame_ = batch->frame();
   }
+  mid_frame_ = !batch->end_of_frame();
   return Status::Ok();
 }
 

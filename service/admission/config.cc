@@ -259,6 +259,12 @@ void CheckCrossKeys(YamlReader& r, Config* c) {
     r.Error(*margin_mark, "engine.margin",
             "a shard (shards.map is set) needs margin 0: producers route the boxes as sent");
   }
+  if (auto boundary_mark = r.MarkOf("frames.boundary");
+      boundary_mark && !c->shards.map.empty() && c->frames.boundary == FrameBoundary::kTick) {
+    r.Error(*boundary_mark, "frames.boundary",
+            "a shard (shards.map is set) closes frames on end_of_frame: the merge aligns shards "
+            "by the producer's frame numbers");
+  }
   if (auto self_mark = r.MarkOf("shards.self");
       self_mark && c->shards.map.empty() && !c->shards.self.empty()) {
     r.Error(*self_mark, "shards.self", "needs shards.map (the shard map it names a shard of)");

@@ -271,6 +271,8 @@ const RuleCase kRuleCases[] = {
      "producers, shards), got a sequence"},
     {"ShardNeedsMarginZero", "engine:\n  margin: 0.5\nshards:\n  map: m.yaml\n",
      "cfg.yaml:2:11: engine.margin: a shard (shards.map is set) needs margin 0"},
+    {"ShardNeedsEndOfFrame", "frames:\n  boundary: tick\nshards:\n  map: m.yaml\n",
+     "cfg.yaml:2:13: frames.boundary: a shard (shards.map is set) closes frames on end_of_frame"},
     {"ShardSelfWithoutMap", "shards:\n  self: a\n",
      "cfg.yaml:2:9: shards.self: needs shards.map (the shard map it names a shard of)"},
     {"SequenceForInteger", "engine:\n  threads: [1]\n",

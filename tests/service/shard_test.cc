@@ -406,7 +406,7 @@ struct World {
                           << "dds:\n  domain: " << base.dds.domain
                           << "\n  cyclone_config: " << cyclone[host]
                           << "\n  partition: " << base.dds.partition
-                          << "\nlogging:\n  summary_interval_s: 0\nproducers:\n  lease_s: 0\n"
+                          << "\nlogging:\n  summary_interval_s: 0\nproducers:\n  lease_s: 10\n"
                           << "shards:\n  map: shards.yaml\n";
     return Run(host, BROADPHASED, {"--config", config, "--shard", name},
                dir.path() + "/daemon-" + name + ".log");

@@ -6,9 +6,12 @@
 // attributes of its insert) and an erase where it left, all in the same frame; an erase to every
 // shard that holds the object. Every shard gets the batch that closes a frame, so every shard
 // closes each of the producer's frames, keyed by its frame number. Each shard is served by an
-// UpdatePublisher of its own (kept objects and restates per shard: a restarted shard gets back
-// exactly the objects routed to it). An item the daemons would refuse (NaN, lo > hi, unknown or
-// duplicate id, id >= 2^48) goes unchanged to one shard, whose daemon reports it.
+// UpdatePublisher of its own that restates (restate_on_restart is always on: a restarted shard
+// gets back exactly the objects routed to it). An item the daemons would refuse for what it is
+// (a coordinate not finite, out of the daemons' range or not integral for int32 daemons, lo > hi,
+// an unknown or duplicate id, an id >= 2^48) goes unchanged to one shard, whose daemon reports
+// it, and is not placed. A refusal that depends on the daemon (CAPACITY: limits.max_objects
+// counts per shard, border copies included) is reported by each shard that refuses.
 //
 // MergedView merges the shards' event streams into one: the overlap set of the world is the
 // union of the shards' sets, each pair counted once per shard that holds it (the witness count
@@ -21,9 +24,10 @@
 // ShardedSubscriber keeps a MergedView fed from every shard and asks each shard for snapshots.
 //
 // Rules for a sharded world: the producer that closes frames numbers them increasingly (the
-// merge aligns shards by UpdateBatch.frame); other producers do not close frames; engine.margin
-// is 0 on every shard; every process loads the same shard map (checked against each daemon's
-// status, ShardInfo.map_digest).
+// merge aligns shards by UpdateBatch.frame); other producers do not close frames; every producer
+// restates (a shard waiting for a producer's restate holds the merged stream back); frames end on
+// end_of_frame and engine.margin is 0 on every shard; every process loads the same shard map
+// (checked against each daemon's status, ShardInfo.map_digest).
 //
 // Thread safety: one thread at a time per object.
 #pragma once
@@ -53,7 +57,9 @@ using transport::ShardMap;
 
 /// Waits until every shard's daemon has reported on its status topic and checks that it serves
 /// this map (the shard of the partition it is in, the same digest). The error names the shard.
-Status CheckShards(Connection& connection, const ShardMap& map, std::chrono::milliseconds timeout);
+/// With coordinate, also returns the daemons' coordinate type (DaemonStatus.coordinate).
+Status CheckShards(Connection& connection, const ShardMap& map, std::chrono::milliseconds timeout,
+                   std::string* coordinate = nullptr);
 
 class ShardedPublisher : public BatchPublisher {
  public:
@@ -97,7 +103,10 @@ class ShardedPublisher : public BatchPublisher {
   ShardedPublisher() = default;
   Status SendPending();
 
+  enum class Coordinate { kFloat, kDouble, kInt32 };
   const ShardMap* map_ = nullptr;
+  Coordinate coordinate_ = Coordinate::kFloat;  // the daemons' (WaitForDaemon learns it)
+  bool mid_frame_ = false;                      // the last batch did not close a frame
   std::vector<std::unique_ptr<Connection>> connections_;
   std::vector<std::unique_ptr<UpdatePublisher>> shards_;
   Connection* connection_ = nullptr;
@@ -114,12 +123,13 @@ class ShardedPublisher : public BatchPublisher {
 struct MergedFrame {
   /// The producer frame (UpdateBatch.frame) the world's set is now at.
   uint64_t frame = 0;
-  /// The first frame after the view (re)gained its sync: collide holds the whole set and
-  /// uncollide is empty (like a snapshot).
+  /// The view's first merged frame: collide holds the whole set and uncollide is empty (like a
+  /// snapshot).
   bool snapshot = false;
   /// Pairs (a0, b0, a1, b1, ...), a < b, sorted.
   std::vector<uint64_t> uncollide, collide;
-  /// Frames folded into this one (a shard's snapshot skipped them): frame - previous frame - 1.
+  /// frame - previous frame - 1: frames folded into this one (a shard missed them, or resynced
+  /// from a snapshot of a later frame), or numbers the producer skipped.
   uint64_t skipped = 0;
   /// The producer's send time of the frame (UpdateBatch.sent_time_ns; the latest over the
   /// shards' frame-closing batches), 0 if unknown: for update->event latency.
@@ -178,7 +188,8 @@ class MergedView {
   struct Shard {
     bool started = false, synced = false;
     uint64_t epoch = 0, last_seq = 0;
-    uint64_t newest = 0;  // the newest frame delivered (queued or merged)
+    std::vector<uint64_t> retired;  // epochs of daemons replaced since (late parts are ignored)
+    uint64_t newest = 0;            // the newest frame delivered (queued or merged)
     // Snapshot being collected.
     bool building = false;
     uint64_t building_frame = 0;

@@ -57,7 +57,8 @@ class ShardMap {
   /// The shard owning the block of point p (K coordinates).
   size_t OwnerOfPoint(const double* p) const;
   /// The shards a box [lo, hi] (K coordinates each) touches, as a mask (bit s: shard s). A box
-  /// with a NaN coordinate or lo > hi touches no shard (0).
+  /// with a NaN coordinate or lo > hi touches no shard (0); infinite coordinates clamp to the
+  /// grid's edge blocks.
   Mask Route(const double* lo, const double* hi) const;
   /// Every shard.
   Mask all() const { return all_; }
