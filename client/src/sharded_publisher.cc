@@ -268,10 +268,12 @@ Status ShardedPublisher::Publish(wire::UpdateBatch* batch) {
     int index = 0;
   };
   std::unordered_map<uint64_t, Net> net;
+  std::vector<uint64_t> order;  // ids in the order first touched: parts in a stable order
   net.reserve(static_cast<size_t>(inserts.ids_size() + updates.ids_size() + batch->erases_size()));
   auto state = [&](uint64_t id) -> Net& {
     auto [it, fresh] = net.try_emplace(id);
     if (fresh) {
+      order.push_back(id);
       auto p = placed_.find(id);
       if (p != placed_.end()) {
         it->second.was_alive = it->second.alive = true;
@@ -378,7 +380,8 @@ Status ShardedPublisher::Publish(wire::UpdateBatch* batch) {
     attributes[s].push_back(p);
     with_attributes[s] = with_attributes[s] || p.has_attributes;
   };
-  for (const auto& [id, n] : net) {
+  for (const uint64_t id : order) {
+    const Net& n = net.at(id);
     const ShardMap::Mask before = n.was_alive ? n.before.shards : 0;
     const ShardMap::Mask after = n.alive ? n.after.shards : 0;
     if (before != 0 && after != 0 && before != after) ++handovers_;

@@ -305,6 +305,148 @@ TEST(MergedView, FramesOfTheDaemonsOwnCountIntoTheNextProducerFrameInOrder) {
   EXPECT_EQ(view.SortedPairs(), (PairList{{5, 6}, {7, 8}}));
 }
 
+// The router's parts, read on each shard's updates topic (no daemon: what a recorder sees).
+class ShardRecorders {
+ public:
+  ShardRecorders(transport::Connection& connection, const transport::ShardMap& map) {
+    for (size_t s = 0; s < map.size(); ++s) {
+      scoped_.push_back(connection.Scoped(
+          transport::ShardPartition(connection.options().partition, map.name(s))));
+      dds::Qos qos;
+      transport::qos::UpdatesReader(qos.get(), 1000);
+      readers_.emplace_back();
+      EXPECT_TRUE(
+          scoped_.back()->CreateReader(transport::TopicId::kUpdates, qos, &readers_.back()).ok());
+    }
+  }
+  // The next batch shard s received (waits up to 10 s).
+  wire::UpdateBatch Next(size_t s) {
+    const auto deadline = std::chrono::steady_clock::now() + 10s;
+    while (queued_.size() <= s || queued_[s].empty()) {
+      queued_.resize(readers_.size());
+      for (size_t r = 0; r < readers_.size(); ++r) {
+        size_t taken = 0;
+        EXPECT_TRUE(readers_[r]
+                        .Take(
+                            64,
+                            [&](const dds::Received& got) {
+                              wire::UpdateBatch b;
+                              EXPECT_TRUE(b.ParseFromArray(got.payload.data(),
+                                                           static_cast<int>(got.payload.size())));
+                              queued_[r].push_back(b);
+                            },
+                            &taken)
+                        .ok());
+      }
+      if (std::chrono::steady_clock::now() > deadline) {
+        ADD_FAILURE() << "shard " << s << " received no batch";
+        return {};
+      }
+      std::this_thread::sleep_for(2ms);
+    }
+    wire::UpdateBatch b = queued_[s].front();
+    queued_[s].erase(queued_[s].begin());
+    return b;
+  }
+  std::vector<dds::Reader>& readers() { return readers_; }
+
+ private:
+  std::vector<std::unique_ptr<transport::Connection>> scoped_;
+  std::vector<dds::Reader> readers_;
+  std::vector<std::vector<wire::UpdateBatch>> queued_;
+};
+
+void AddBox(wire::BoxArray* a, uint64_t id, std::array<float, 3> lo, std::array<float, 3> hi) {
+  a->add_ids(id);
+  for (float v : lo) a->add_lo32(v);
+  for (float v : hi) a->add_hi32(v);
+}
+
+std::vector<uint64_t> Ids(const wire::BoxArray& a) { return {a.ids().begin(), a.ids().end()}; }
+std::vector<uint64_t> Erases(const wire::UpdateBatch& b) {
+  return {b.erases().begin(), b.erases().end()};
+}
+
+TEST(ShardedPublisher, RoutesEachItemSoThatEveryShardAppliesWhatOneDaemonWould) {
+  service::Config config = TestConfig(kDomain);
+  std::unique_ptr<transport::Connection> connection;
+  BP_ASSERT_OK(transport::Connection::Open(ClientOptions(config), &connection));
+  const transport::ShardMap map = TestMap();
+  ShardRecorders recorders(*connection, map);
+  std::unique_ptr<client::ShardedPublisher> pub;
+  BP_ASSERT_OK(client::ShardedPublisher::Create(*connection, map, kProducer, {}, &pub));
+  for (size_t s = 0; s < 3; ++s) BP_ASSERT_OK(pub->shard(s).WaitForReaders(1, 20s));
+  const float nan = std::nanf("");
+  // Frame 1: 1 inside a; 2 across a and b; 3 not a box (NaN): unchanged to a; 4 static, in c.
+  wire::UpdateBatch batch;
+  batch.set_dim(3);
+  batch.set_frame(1);
+  batch.set_end_of_frame(true);
+  AddBox(batch.mutable_inserts(), 1, {-25, -15, 0}, {-24, -14, 1});
+  AddBox(batch.mutable_inserts(), 2, {8, -15, 0}, {12, -14, 1});
+  AddBox(batch.mutable_inserts(), 3, {nan, 0, 0}, {1, 1, 1});
+  AddBox(batch.mutable_inserts(), 4, {-25, 5, 0}, {-24, 6, 1});
+  for (bool st : {false, false, false, true}) batch.mutable_inserts()->add_static_flags(st);
+  BP_ASSERT_OK(pub->Publish(&batch));
+  wire::UpdateBatch a = recorders.Next(0), b = recorders.Next(1), c = recorders.Next(2);
+  EXPECT_EQ(Ids(a.inserts()), (std::vector<uint64_t>{1, 2, 3}));
+  EXPECT_EQ(a.inserts().static_flags_size(), 3);  // as given (false)
+  EXPECT_FALSE(a.inserts().static_flags(0) || a.inserts().static_flags(1));
+  EXPECT_EQ(Ids(b.inserts()), (std::vector<uint64_t>{2}));
+  EXPECT_EQ(Ids(c.inserts()), (std::vector<uint64_t>{4}));
+  ASSERT_EQ(c.inserts().static_flags_size(), 1);
+  EXPECT_TRUE(c.inserts().static_flags(0));
+  EXPECT_TRUE(a.end_of_frame() && b.end_of_frame() && c.end_of_frame());
+  EXPECT_EQ(pub->objects(), 3u);  // 3 was not placed
+  EXPECT_EQ(pub->border_objects(), 1u);
+  // Frame 2: 4 moves from c to b (inserted there with its static flag, erased from c); 2 is
+  // erased and inserted again in c (an insert with an update of its box later in the batch);
+  // 9 is unknown (its update goes to a, which refuses it); 1 is inserted twice (a refuses it).
+  batch.Clear();
+  batch.set_dim(3);
+  batch.set_frame(2);
+  batch.set_end_of_frame(true);
+  batch.add_erases(2);
+  AddBox(batch.mutable_inserts(), 2, {-25, 5, 0}, {-24, 6, 1});
+  AddBox(batch.mutable_inserts(), 1, {-25, -15, 0}, {-24, -14, 1});
+  AddBox(batch.mutable_updates(), 4, {15, 5, 0}, {16, 6, 1});
+  AddBox(batch.mutable_updates(), 9, {0, 0, 0}, {1, 1, 1});
+  AddBox(batch.mutable_updates(), 2, {-26, 5, 0}, {-24, 6, 1});
+  BP_ASSERT_OK(pub->Publish(&batch));
+  a = recorders.Next(0);
+  b = recorders.Next(1);
+  c = recorders.Next(2);
+  EXPECT_EQ(Erases(a), (std::vector<uint64_t>{2}));
+  EXPECT_EQ(Ids(a.inserts()), (std::vector<uint64_t>{1}));  // the duplicate, refused there
+  EXPECT_EQ(Ids(a.updates()), (std::vector<uint64_t>{9}));  // unknown, refused there
+  EXPECT_EQ(Erases(b), (std::vector<uint64_t>{2}));
+  EXPECT_EQ(Ids(b.inserts()), (std::vector<uint64_t>{4}));
+  ASSERT_EQ(b.inserts().static_flags_size(), 1);
+  EXPECT_TRUE(b.inserts().static_flags(0));
+  EXPECT_EQ(b.inserts().lo32(0), 15.0f);  // the update's box
+  std::vector<uint64_t> c_erases = Erases(c);
+  std::sort(c_erases.begin(), c_erases.end());
+  EXPECT_EQ(c_erases, (std::vector<uint64_t>{4}));
+  EXPECT_EQ(Ids(c.inserts()), (std::vector<uint64_t>{2}));
+  EXPECT_EQ(c.inserts().lo32(0), -26.0f);  // inserted with the box of its later update
+  EXPECT_EQ(pub->handovers(), 2u);
+  // Refused whole, nothing sent: a closing frame number that does not increase, a malformed
+  // array.
+  batch.Clear();
+  batch.set_dim(3);
+  batch.set_frame(2);
+  batch.set_end_of_frame(true);
+  Status s = pub->Publish(&batch);
+  EXPECT_EQ(s.code(), StatusCode::kInvalidArgument);
+  EXPECT_NE(s.message().find("increase"), std::string::npos) << s.message();
+  batch.set_frame(3);
+  batch.mutable_inserts()->add_ids(7);
+  batch.mutable_inserts()->add_lo32(0);
+  s = pub->Publish(&batch);
+  EXPECT_EQ(s.code(), StatusCode::kInvalidArgument);
+  EXPECT_NE(s.message().find("inserts has 1 ids but 1 lo"), std::string::npos) << s.message();
+}
+
 // --- Real processes ------------------------------------------------------------------------
 
 class ScratchDir {
