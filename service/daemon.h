@@ -153,7 +153,7 @@ class Daemon {
   std::chrono::steady_clock::time_point CheckInterestOwners();
   // After a frame: each interest's events on its stream.
   void PublishInterestEvents(uint64_t frame, uint32_t source_producer, uint64_t source_frame,
-                             uint64_t source_sent_ns);
+                             uint64_t source_sent_ns, bool restate);
   // The interest's set on its stream (snapshot parts).
   void PublishInterestSnapshot(uint64_t id);
   // Publishes the interest snapshots asked for whose interval has passed and whose interest's
@@ -272,6 +272,7 @@ class Daemon {
     uint64_t seq = 0;
     uint64_t epoch = 0;         // random per stream
     bool snapshot_due = false;  // requested, waiting for limits.snapshot_interval_ms
+    bool published = false;     // a part of the current frame was written (shards)
     std::chrono::steady_clock::time_point last_snapshot{};
   };
   std::unordered_map<uint64_t, Stream> streams_;

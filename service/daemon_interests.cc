@@ -260,20 +260,38 @@ std::chrono::steady_clock::time_point Daemon::CheckInterestOwners() {
 }
 
 void Daemon::PublishInterestEvents(uint64_t frame, uint32_t source_producer, uint64_t source_frame,
-                                   uint64_t source_sent_ns) {
+                                   uint64_t source_sent_ns, bool restate) {
   interests_changed_ = false;
-  interests_->ForEachDelta([&](uint64_t id, const InterestTable::Delta& delta) {
-    const auto stream = streams_.find(id);
-    if (stream == streams_.end()) return;
-    ForEachEventPart(frame, delta.uncollide, delta.collide, [&] {
+  // A shard publishes every frame on every stream, empty or not: a merging subscriber needs
+  // each shard's part of each frame. A daemon alone publishes only the frames with events.
+  const bool every_frame = !shard_.name().empty();
+  if (every_frame) {
+    for (auto& [id, stream] : streams_) stream.published = false;
+  }
+  auto publish = [&](uint64_t id, Stream& stream, const std::vector<uint64_t>& uncollide,
+                     const std::vector<uint64_t>& collide) {
+    stream.published = true;
+    ForEachEventPart(frame, uncollide, collide, [&] {
       event_msg_.set_interest(id);
       event_msg_.set_overlaps(interests_->SetSize(id));
       event_msg_.set_source_producer(source_producer);
       event_msg_.set_source_frame(source_frame);
       event_msg_.set_source_sent_time_ns(source_sent_ns);
-      WriteStreamPart(id, stream->second);
+      event_msg_.set_restate(restate);
+      event_msg_.set_resyncing(!resync_.empty());
+      WriteStreamPart(id, stream);
     });
+  };
+  interests_->ForEachDelta([&](uint64_t id, const InterestTable::Delta& delta) {
+    const auto stream = streams_.find(id);
+    if (stream != streams_.end()) publish(id, stream->second, delta.uncollide, delta.collide);
   });
+  if (every_frame) {
+    const std::vector<uint64_t> none;
+    for (auto& [id, stream] : streams_) {
+      if (!stream.published) publish(id, stream, none, none);
+    }
+  }
   if (!stop_.load()) (void)ServeInterestSnapshots();  // those that waited for this frame
 }
 
@@ -310,6 +328,9 @@ void Daemon::PublishInterestSnapshot(uint64_t id) {
   ForEachSnapshotPart([&] {
     event_msg_.set_interest(id);
     event_msg_.set_overlaps(snapshot_pairs_.size());
+    event_msg_.set_source_producer(last_source_producer_);
+    event_msg_.set_source_frame(last_source_frame_);
+    event_msg_.set_resyncing(!resync_.empty());
     WriteStreamPart(id, st);
   });
   spdlog::debug("interest {} snapshot of frame {}: {} pairs", Hex(id), frames_.load(),

@@ -42,8 +42,6 @@ void Daemon::RunFrame(uint32_t source_producer, uint64_t source_frame, uint64_t 
     event_msg_.set_overlaps(WorldOverlaps());
     WriteEventPart();
   });
-  PublishInterestEvents(frame, source_producer, source_frame, source_sent_ns);
-  frames_.store(frame);
   // The key of later snapshots: the producer frame their set is as of. After a restate, an
   // expiry, a tick or a stop the set is as of no frame a producer closed, until the next one.
   if (restate || source_producer == 0) {
@@ -53,6 +51,8 @@ void Daemon::RunFrame(uint32_t source_producer, uint64_t source_frame, uint64_t 
     last_source_producer_ = source_producer;
     last_source_frame_ = source_frame;
   }
+  PublishInterestEvents(frame, source_producer, source_frame, source_sent_ns, restate);
+  frames_.store(frame);
   frame_dirty_ = false;
   ++interval_frames_;
   interval_events_ += pairs;

@@ -319,16 +319,17 @@ std::vector<std::pair<uint64_t, uint64_t>> MergedView::SortedPairs() const {
 }
 
 Status ShardedSubscriber::Create(Connection& connection, const ShardMap& map, int32_t depth,
-                                 std::unique_ptr<ShardedSubscriber>* out) {
+                                 std::unique_ptr<ShardedSubscriber>* out, uint64_t interest) {
   std::unique_ptr<ShardedSubscriber> sub(new ShardedSubscriber(map.size()));
   sub->map_ = &map;
+  sub->interest_ = interest;
   sub->connection_ = &connection;
   for (size_t s = 0; s < map.size(); ++s) {
     sub->connections_.push_back(
         connection.Scoped(transport::ShardPartition(connection.options().partition, map.name(s))));
     std::unique_ptr<EventSubscriber> events;
     std::unique_ptr<SnapshotRequester> requester;
-    Status st = EventSubscriber::Create(*sub->connections_.back(), depth, &events);
+    Status st = EventSubscriber::Create(*sub->connections_.back(), depth, &events, interest);
     if (st.ok()) st = SnapshotRequester::Create(*sub->connections_.back(), &requester);
     if (!st.ok()) return Status(st.code(), "shard '" + map.name(s) + "': " + st.message());
     sub->subscribers_.push_back(std::move(events));
@@ -347,7 +348,8 @@ Status ShardedSubscriber::WaitForDaemons(std::chrono::milliseconds timeout) {
     const auto left = std::max(std::chrono::milliseconds(1),
                                std::chrono::duration_cast<std::chrono::milliseconds>(
                                    deadline - std::chrono::steady_clock::now()));
-    Status st = subscribers_[s]->WaitForDaemon(left);
+    // An interest's stream has no writer until the shard accepts the declaration.
+    Status st = interest_ != 0 ? Status::Ok() : subscribers_[s]->WaitForDaemon(left);
     if (st.ok()) st = requesters_[s]->WaitForDaemon(left);
     if (!st.ok()) return Status(st.code(), "shard '" + map_->name(s) + "': " + st.message());
   }
@@ -392,7 +394,8 @@ Status ShardedSubscriber::Poll(std::chrono::milliseconds timeout, std::vector<Me
       }
       if (Status st = requesters_[s]->Request(lagging                ? "lagging"
                                               : view_.resyncs(s) > 0 ? "resync"
-                                                                     : "join");
+                                                                     : "join",
+                                              interest_);
           !st.ok()) {
         return Status(st.code(), "shard '" + map_->name(s) + "': " + st.message());
       }
@@ -408,6 +411,87 @@ Status ShardedSubscriber::Poll(std::chrono::milliseconds timeout, std::vector<Me
     if (merged || now >= deadline) return Status::Ok();
     if (!any) std::this_thread::sleep_for(std::chrono::milliseconds(1));
   }
+}
+
+}  // namespace bp::client
+
+namespace bp::client {
+
+Status ShardedInterestClient::Create(Connection& connection, const ShardMap& map,
+                                     std::unique_ptr<ShardedInterestClient>* out) {
+  std::unique_ptr<ShardedInterestClient> c(new ShardedInterestClient());
+  c->map_ = &map;
+  for (size_t s = 0; s < map.size(); ++s) {
+    c->connections_.push_back(
+        connection.Scoped(transport::ShardPartition(connection.options().partition, map.name(s))));
+    std::unique_ptr<InterestClient> client;
+    std::unique_ptr<StatusSubscriber> status;
+    Status st = InterestClient::Create(*c->connections_.back(), &client);
+    if (st.ok()) st = StatusSubscriber::Create(*c->connections_.back(), 64, &status);
+    if (!st.ok()) return Status(st.code(), "shard '" + map.name(s) + "': " + st.message());
+    c->clients_.push_back(std::move(client));
+    c->status_.push_back(std::move(status));
+  }
+  *out = std::move(c);
+  return Status::Ok();
+}
+
+Status ShardedInterestClient::WaitForDaemons(std::chrono::milliseconds timeout) {
+  const auto deadline = std::chrono::steady_clock::now() + timeout;
+  for (size_t s = 0; s < clients_.size(); ++s) {
+    const auto left = std::max(std::chrono::milliseconds(1),
+                               std::chrono::duration_cast<std::chrono::milliseconds>(
+                                   deadline - std::chrono::steady_clock::now()));
+    if (Status st = clients_[s]->WaitForDaemon(left); !st.ok()) {
+      return Status(st.code(), "shard '" + map_->name(s) + "': " + st.message());
+    }
+  }
+  return Status::Ok();
+}
+
+Status ShardedInterestClient::Declare(const wire::Interest& interest) {
+  if (interest.leave_margin() != 0) {
+    return Status(StatusCode::kInvalidArgument,
+                  "interest " + std::to_string(interest.id()) +
+                      ": a leave margin is not available across shards (an object's membership "
+                      "of a region is kept by the shard it was in)");
+  }
+  for (size_t s = 0; s < clients_.size(); ++s) {
+    if (Status st = clients_[s]->Declare(interest); !st.ok()) {
+      return Status(st.code(), "shard '" + map_->name(s) + "': " + st.message());
+    }
+  }
+  return Status::Ok();
+}
+
+Status ShardedInterestClient::Drop(uint64_t id) {
+  Status first;
+  for (size_t s = 0; s < clients_.size(); ++s) {
+    Status st = clients_[s]->Drop(id);
+    if (!st.ok() && first.ok())
+      first = Status(st.code(), "shard '" + map_->name(s) + "': " + st.message());
+  }
+  return first;
+}
+
+Status ShardedInterestClient::Maintain() {
+  std::vector<wire::InterestRefusal> refusals;
+  for (size_t s = 0; s < clients_.size(); ++s) {
+    reports_.clear();
+    if (Status st = status_[s]->Poll(std::chrono::milliseconds(0), &reports_); !st.ok()) return st;
+    for (const wire::DaemonStatus& r : reports_) {
+      refusals.clear();
+      if (Status st = clients_[s]->OnStatus(r, &refusals); !st.ok()) {
+        return Status(st.code(), "shard '" + map_->name(s) + "': " + st.message());
+      }
+      if (!refusals.empty()) {
+        return Status(
+            StatusCode::kInvalidArgument,
+            "shard '" + map_->name(s) + "' refused the interest: " + refusals.front().message());
+      }
+    }
+  }
+  return Status::Ok();
 }
 
 }  // namespace bp::client

@@ -15,6 +15,7 @@
 #include <set>
 #include <sstream>
 
+#include "interest_oracle.h"
 #include "service_test_support.h"
 #include <fcntl.h>
 #include <signal.h>
@@ -667,6 +668,102 @@ TEST(ShardProcess, ThreeShardsOnLoopbackMatchTheOracleFrameByFrame) {
   EXPECT_EQ(producer->Wait(30s), 0) << w.Logs();
   for (size_t s = 0; s < 3; ++s) EXPECT_EQ(sub->view().resyncs(s), 0u) << map.name(s);
   std::printf("%s", ReadFile(w.dir.path() + "/producer.log").c_str());  // handovers, borders
+}
+
+// An interest across the shards: two regions on borders, the pairs inside them and the pairs of
+// one key, declared on every shard and merged from their interest streams, equal to the interest
+// oracle at every frame.
+TEST(ShardProcess, AnInterestAcrossShardsMatchesTheOracleFrameByFrame) {
+  World w;
+  const transport::ShardMap map = TestMap();
+  std::unique_ptr<transport::Connection> connection;
+  BP_ASSERT_OK(transport::Connection::Open(ClientOptions(w.base), &connection));
+  std::unique_ptr<client::ShardedInterestClient> interests;
+  BP_ASSERT_OK(client::ShardedInterestClient::Create(*connection, map, &interests));
+  {
+    const Status s = interests->WaitForDaemons(30s);
+    ASSERT_TRUE(s.ok()) << s.ToString() << "\n" << w.Logs();
+  }
+  wire::Interest interest;
+  interest.set_id(client::InterestClient::NewInterestId());
+  interest.set_dim(3);
+  for (double v : {-15.0, -5.0, -3.0, 5.0, -10.0, -3.0}) interest.add_region_lo(v);
+  for (double v : {-5.0, 5.0, 3.0, 15.0, 10.0, 3.0}) interest.add_region_hi(v);
+  interest.set_pairs_inside(true);
+  interest.add_keys(service::GlobalKey(kProducer, 7));
+  wire::Interest with_margin = interest;
+  with_margin.set_leave_margin(1);
+  EXPECT_EQ(interests->Declare(with_margin).code(), StatusCode::kInvalidArgument);
+  BP_ASSERT_OK(interests->Declare(interest));
+  std::unique_ptr<client::ShardedSubscriber> sub;
+  BP_ASSERT_OK(client::ShardedSubscriber::Create(*connection, map, 1000, &sub, interest.id()));
+  BP_ASSERT_OK(sub->WaitForDaemons(30s));
+  constexpr int kFrames = 120;
+  auto producer = w.Produce(kFrames, 100);
+  BorderScene scene(7);
+  InterestOracle<3> oracle;
+  oracle.Declare(interest);
+  FrameOps ops;
+  auto apply = [&] {
+    for (uint64_t id : ops.erases) oracle.objects.erase(service::GlobalKey(kProducer, id));
+    for (const auto* boxes : {&ops.inserts, &ops.updates}) {
+      for (const SceneBox& b : *boxes) {
+        auto& o = oracle.objects[service::GlobalKey(kProducer, b.id)];
+        for (size_t a = 0; a < 3; ++a) {
+          o.box.lo[a] = b.lo[a];
+          o.box.hi[a] = b.hi[a];
+        }
+      }
+    }
+    oracle.Step();
+  };
+  scene.Initial(&ops);
+  apply();
+  std::set<std::pair<uint64_t, uint64_t>> set, before = oracle.interests[interest.id()].set;
+  std::vector<client::MergedFrame> frames;
+  uint64_t frame = 0, exact_frames = 0;
+  const auto deadline = std::chrono::steady_clock::now() + 90s;
+  while (frame < kFrames) {
+    ASSERT_LT(std::chrono::steady_clock::now(), deadline) << "merged frame " << frame << "\n"
+                                                          << w.Logs();
+    BP_ASSERT_OK(interests->Maintain());
+    frames.clear();
+    BP_ASSERT_OK(sub->Poll(100ms, &frames));
+    for (const client::MergedFrame& f : frames) {
+      if (f.snapshot) set.clear();
+      for (size_t i = 0; i + 1 < f.uncollide.size(); i += 2) {
+        ASSERT_EQ(set.erase({f.uncollide[i], f.uncollide[i + 1]}), 1u) << "frame " << f.frame;
+      }
+      for (size_t i = 0; i + 1 < f.collide.size(); i += 2) {
+        ASSERT_TRUE(set.insert({f.collide[i], f.collide[i + 1]}).second) << "frame " << f.frame;
+      }
+      const bool events_comparable = !f.snapshot && f.skipped == 0;
+      while (scene.frame() < f.frame) {
+        before = oracle.interests[interest.id()].set;
+        scene.Next(&ops);
+        apply();
+      }
+      const auto& expected = oracle.interests[interest.id()].set;
+      ASSERT_EQ(set, expected) << "the interest's set at frame " << f.frame;
+      if (events_comparable) {
+        // The merged events are the difference between the oracle's sets.
+        std::vector<uint64_t> unc, col;
+        for (const auto& p : before) {
+          if (!expected.count(p)) unc.insert(unc.end(), {p.first, p.second});
+        }
+        for (const auto& p : expected) {
+          if (!before.count(p)) col.insert(col.end(), {p.first, p.second});
+        }
+        EXPECT_EQ(f.uncollide, unc) << "frame " << f.frame;
+        EXPECT_EQ(f.collide, col) << "frame " << f.frame;
+        ++exact_frames;
+      }
+      frame = f.frame;
+    }
+  }
+  EXPECT_GE(exact_frames, static_cast<uint64_t>(kFrames) - 5) << "frames were folded";
+  EXPECT_FALSE(oracle.interests[interest.id()].set.empty());
+  EXPECT_EQ(producer->Wait(30s), 0) << w.Logs();
 }
 
 TEST(ShardProcess, AShardKilledAndStartedAgainIsRestatedAndTheMergedSetStaysExact) {

@@ -19,16 +19,38 @@ int WatchSharded(const Common& common, const WatchOptions& options,
     std::fprintf(stderr, "bpctl watch: %s\n", error.c_str());
     return 2;
   }
-  if (interest.id() != 0 || !options.latency_log.empty() || options.json) {
+  if (!options.latency_log.empty() || options.json) {
     std::fprintf(stderr,
-                 "bpctl watch: on a sharded world (shards.map), --region, --key, --producer, "
-                 "--category, --latency-log and --json are not available\n");
+                 "bpctl watch: on a sharded world (shards.map), --latency-log and --json are not "
+                 "available\n");
     return 2;
   }
   auto connection = Connect(common);
   if (!connection) return 1;
+  // With an interest: declared on every shard, its streams merged, dropped on the way out.
+  std::unique_ptr<client::ShardedInterestClient> interests;
+  if (interest.id() != 0) {
+    Status s = client::ShardedInterestClient::Create(*connection, map, &interests);
+    if (s.ok()) {
+      s = WaitInterruptibly(
+          common.wait_s, [&](std::chrono::milliseconds t) { return interests->WaitForDaemons(t); });
+    }
+    if (s.ok()) s = interests->Declare(interest);
+    if (!s.ok()) {
+      std::fprintf(stderr, "bpctl watch: cannot declare the interest: %s\n", s.ToString().c_str());
+      return s.code() == StatusCode::kInvalidArgument ? 2 : 1;
+    }
+  }
+  struct DropOnExit {
+    client::ShardedInterestClient* client;
+    uint64_t id;
+    ~DropOnExit() {
+      if (client != nullptr) (void)client->Drop(id);
+    }
+  } drop_on_exit{interests.get(), interest.id()};
   std::unique_ptr<client::ShardedSubscriber> sub;
-  if (Status s = client::ShardedSubscriber::Create(*connection, map, options.depth, &sub);
+  if (Status s =
+          client::ShardedSubscriber::Create(*connection, map, options.depth, &sub, interest.id());
       !s.ok()) {
     std::fprintf(stderr, "bpctl watch: %s\n", s.ToString().c_str());
     return 1;
@@ -51,6 +73,12 @@ int WatchSharded(const Common& common, const WatchOptions& options,
   while (!StopRequested()) {
     if (options.seconds > 0 && SecondsSince(start) >= options.seconds) break;
     if (options.frames > 0 && frames >= options.frames) break;
+    if (interests) {
+      if (Status s = interests->Maintain(); !s.ok()) {
+        std::fprintf(stderr, "bpctl watch: %s\n", s.ToString().c_str());
+        return 1;
+      }
+    }
     merged.clear();
     if (Status s = sub->Poll(std::chrono::milliseconds(100), &merged); !s.ok()) {
       std::fprintf(stderr, "bpctl watch: %s\n", s.ToString().c_str());

@@ -45,6 +45,7 @@
 #include "broadphase.pb.h"
 
 #include "bp/client/connection.h"
+#include "bp/client/interests.h"
 #include "bp/client/overlap_view.h"
 #include "bp/client/subscriber.h"
 #include "bp/client/update_publisher.h"
@@ -222,12 +223,42 @@ class MergedView {
   uint64_t contradictions_ = 0;
 };
 
+/// Declares an interest on every shard (an InterestClient per shard): the shards' interest
+/// streams then merge like their whole-world streams (ShardedSubscriber with the interest's id).
+/// Each criterion of an interest is decided from the boxes of the pair or of the region and the
+/// object, which a shard holding them has whole; a leave margin is not (a region's members carry
+/// over from frame to frame, and an object that leaves a shard leaves its memory there), so
+/// Declare refuses one. A declaration reaches the shards at slightly different frames: the merged
+/// stream is the old declaration's, then the new one's, with frames between that mix them.
+class ShardedInterestClient {
+ public:
+  static Status Create(Connection& connection, const ShardMap& map,
+                       std::unique_ptr<ShardedInterestClient>* out);
+  /// Waits until every shard's daemon reads interests.
+  Status WaitForDaemons(std::chrono::milliseconds timeout);
+  /// Declares (or changes) interest on every shard; InvalidArgument for a leave margin.
+  Status Declare(const wire::Interest& interest);
+  Status Drop(uint64_t id);
+  /// Reads every shard's status: declares again to a restarted shard; a refusal of one of this
+  /// client's interests by a shard is returned as InvalidArgument naming the shard.
+  Status Maintain();
+
+ private:
+  ShardedInterestClient() = default;
+  const ShardMap* map_ = nullptr;
+  std::vector<std::unique_ptr<Connection>> connections_;
+  std::vector<std::unique_ptr<InterestClient>> clients_;
+  std::vector<std::unique_ptr<StatusSubscriber>> status_;
+  std::vector<wire::DaemonStatus> reports_;
+};
+
 /// Follows every shard's events topic and keeps a MergedView, asking shards for snapshots.
 class ShardedSubscriber {
  public:
-  /// depth: each shard's KEEP_LAST history (as Subscriber).
+  /// depth: each shard's KEEP_LAST history (as Subscriber). With interest: that interest's
+  /// streams (declared with ShardedInterestClient), merged.
   static Status Create(Connection& connection, const ShardMap& map, int32_t depth,
-                       std::unique_ptr<ShardedSubscriber>* out);
+                       std::unique_ptr<ShardedSubscriber>* out, uint64_t interest = 0);
   /// Checks the shards' maps, then waits until every shard's writer and request reader matched.
   Status WaitForDaemons(std::chrono::milliseconds timeout);
   /// Reads what the shards sent within timeout and appends the merged frames now complete.
@@ -240,6 +271,7 @@ class ShardedSubscriber {
   explicit ShardedSubscriber(size_t shards) : view_(shards) {}
   void Feed(size_t s, const wire::EventBatch& part);
   const ShardMap* map_ = nullptr;
+  uint64_t interest_ = 0;
   Connection* connection_ = nullptr;
   std::vector<std::unique_ptr<Connection>> connections_;
   std::vector<std::unique_ptr<EventSubscriber>> subscribers_;
