@@ -577,6 +577,17 @@ struct World {
   }
 };
 
+// The merging subscriber of a world: a connection with options and a ShardedSubscriber of
+// every shard's stream, matched to every shard.
+void OpenMerged(World& w, const transport::ConnectionOptions& options,
+                const transport::ShardMap& map, std::unique_ptr<transport::Connection>* connection,
+                std::unique_ptr<client::ShardedSubscriber>* sub) {
+  BP_ASSERT_OK(transport::Connection::Open(options, connection));
+  BP_ASSERT_OK(client::ShardedSubscriber::Create(**connection, map, 1000, sub));
+  const Status s = (*sub)->WaitForDaemons(30s);
+  ASSERT_TRUE(s.ok()) << s.ToString() << "\n" << w.Logs();
+}
+
 // Follows the merged stream until frame `last`, comparing each merged frame with the oracle:
 // the set at every frame, and the events too where no frame was folded. on_frame(frame) runs
 // after each merged frame.
@@ -652,13 +663,9 @@ TEST(ShardProcess, ThreeShardsOnLoopbackMatchTheOracleFrameByFrame) {
   World w;
   const transport::ShardMap map = TestMap();
   std::unique_ptr<transport::Connection> connection;
-  BP_ASSERT_OK(transport::Connection::Open(ClientOptions(w.base), &connection));
   std::unique_ptr<client::ShardedSubscriber> sub;
-  BP_ASSERT_OK(client::ShardedSubscriber::Create(*connection, map, 1000, &sub));
-  {
-    const Status s = sub->WaitForDaemons(30s);
-    ASSERT_TRUE(s.ok()) << s.ToString() << "\n" << w.Logs();
-  }
+  OpenMerged(w, ClientOptions(w.base), map, &connection, &sub);
+  if (HasFatalFailure()) return;
   constexpr int kFrames = 150;
   auto producer = w.Produce(kFrames, 100);
   uint64_t folded = 0;
@@ -770,13 +777,9 @@ TEST(ShardProcess, AShardKilledAndStartedAgainIsRestatedAndTheMergedSetStaysExac
   World w;
   const transport::ShardMap map = TestMap();
   std::unique_ptr<transport::Connection> connection;
-  BP_ASSERT_OK(transport::Connection::Open(ClientOptions(w.base), &connection));
   std::unique_ptr<client::ShardedSubscriber> sub;
-  BP_ASSERT_OK(client::ShardedSubscriber::Create(*connection, map, 1000, &sub));
-  {
-    const Status s = sub->WaitForDaemons(30s);
-    ASSERT_TRUE(s.ok()) << s.ToString() << "\n" << w.Logs();
-  }
+  OpenMerged(w, ClientOptions(w.base), map, &connection, &sub);
+  if (HasFatalFailure()) return;
   constexpr int kFrames = 200;
   auto producer = w.Produce(kFrames, 50);
   uint64_t folded = 0;
@@ -898,13 +901,9 @@ TEST(ShardNetwork, FourHostsOverVethPairsAndACutLinkResyncToTheExactSet) {
   transport::ConnectionOptions options = ClientOptions(w.base);
   options.cyclone_xml = net.CycloneXml(std::string(TestNetwork::kSubnet) + "1");
   std::unique_ptr<transport::Connection> connection;
-  BP_ASSERT_OK(transport::Connection::Open(options, &connection));
   std::unique_ptr<client::ShardedSubscriber> sub;
-  BP_ASSERT_OK(client::ShardedSubscriber::Create(*connection, map, 1000, &sub));
-  {
-    const Status s = sub->WaitForDaemons(30s);
-    ASSERT_TRUE(s.ok()) << s.ToString() << "\n" << w.Logs();
-  }
+  OpenMerged(w, options, map, &connection, &sub);
+  if (HasFatalFailure()) return;
   constexpr int kFrames = 300;
   auto producer = w.Produce(kFrames, 50);
   uint64_t folded = 0;
