@@ -177,12 +177,6 @@ void MergedView::FoldFrame(Shard& s) {
   s.acc_collide.clear();
 }
 
-uint64_t MergedView::shard_frame(size_t s) const {
-  const Shard& shard = shards_[s];
-  if (!shard.queue.empty()) return shard.queue.back().key;
-  return emitted_ && shard.synced ? frame_ : 0;
-}
-
 bool MergedView::NextKey(uint64_t* key) const {
   // The smallest frame some shard has delivered and not merged; a shard whose next entry is a
   // snapshot of a later frame cannot tell the frames before it: merge up to that one.

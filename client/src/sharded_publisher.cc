@@ -161,7 +161,6 @@ Status ShardedPublisher::Create(Connection& connection, const ShardMap& map, uin
   }
   p->parts_.resize(map.size());
   p->pending_.assign(map.size(), false);
-  p->items_sent_.assign(map.size(), 0);
   *out = std::move(p);
   return Status::Ok();
 }
@@ -200,7 +199,6 @@ Status ShardedPublisher::SendPending() {
     if (Status st = shards_[s]->Publish(&parts_[s]); !st.ok()) {
       return Status(st.code(), "shard '" + map_->name(s) + "': " + st.message());
     }
-    items_sent_[s] += Items(parts_[s]);
     pending_[s] = false;
   }
   return Status::Ok();
@@ -431,7 +429,6 @@ Status ShardedPublisher::Publish(wire::UpdateBatch* batch) {
     Status st = shards_[s]->Publish(&parts_[s]);
     if (st.ok()) {
       taken = true;
-      items_sent_[s] += Items(parts_[s]);
     } else if (!taken) {
       return Status(st.code(), "shard '" + map_->name(s) + "': " + st.message());
     } else {

@@ -6,6 +6,7 @@
 #include <limits>
 #include <sstream>
 
+#include "process_test_support.h"
 #include "service_test_support.h"
 #include <fcntl.h>
 #include <signal.h>
@@ -16,69 +17,6 @@ namespace bp::test {
 namespace {
 
 constexpr uint32_t kDomain = BP_TEST_DOMAIN;
-
-// A scratch directory per test, removed when the test ends.
-class ScratchDir {
- public:
-  ScratchDir()
-      : path_((std::filesystem::temp_directory_path() / ("bp-proc-" + TestPartition())).string()) {
-    std::filesystem::create_directories(path_);
-  }
-  ~ScratchDir() {
-    std::error_code ignored;
-    std::filesystem::remove_all(path_, ignored);
-  }
-  const std::string& path() const { return path_; }
-
- private:
-  std::string path_;
-};
-
-// A running broadphased (or another binary); its stdout and stderr go to a file.
-class Process {
- public:
-  Process(const std::vector<std::string>& args, const std::string& log_path,
-          std::string binary = BROADPHASED) {
-    pid_ = fork();
-    if (pid_ == 0) {
-      const int fd = open(log_path.c_str(), O_WRONLY | O_CREAT | O_TRUNC, 0644);
-      dup2(fd, 2);
-      dup2(fd, 1);
-      std::vector<char*> argv;
-      argv.push_back(binary.data());
-      for (auto& a : args) argv.push_back(const_cast<char*>(a.c_str()));
-      argv.push_back(nullptr);
-      execv(binary.c_str(), argv.data());
-      _exit(127);
-    }
-  }
-  ~Process() {
-    if (pid_ > 0 && !exited_) {
-      kill(pid_, SIGKILL);
-      int status = 0;
-      waitpid(pid_, &status, 0);
-    }
-  }
-  void Signal(int sig) { kill(pid_, sig); }
-  /// Waits for exit; the exit status, or -1 on timeout or a death by signal.
-  int Wait(std::chrono::milliseconds timeout = 20s) {
-    const auto deadline = std::chrono::steady_clock::now() + timeout;
-    while (std::chrono::steady_clock::now() < deadline) {
-      int status = 0;
-      const pid_t r = waitpid(pid_, &status, WNOHANG);
-      if (r == pid_) {
-        exited_ = true;
-        return WIFEXITED(status) ? WEXITSTATUS(status) : -1;
-      }
-      std::this_thread::sleep_for(10ms);
-    }
-    return -1;
-  }
-
- private:
-  pid_t pid_ = -1;
-  bool exited_ = false;
-};
 
 // What a test that follows the daemon's overlap set opens: a connection, a status collector,
 // an event subscriber and a snapshot requester, both matched to the daemon.
@@ -98,13 +36,6 @@ void OpenWatcher(const service::Config& c, Watcher* w) {
   BP_ASSERT_OK(client::SnapshotRequester::Create(*w->dds.connection, &w->dds.requests));
   BP_ASSERT_OK(w->dds.sub->WaitForDaemon(20s));
   BP_ASSERT_OK(w->dds.requests->WaitForDaemon(20s));
-}
-
-std::string ReadFile(const std::string& path) {
-  std::ifstream in(path);
-  std::stringstream s;
-  s << in.rdbuf();
-  return s.str();
 }
 
 std::string WriteConfig(const std::string& dir, const std::string& text) {

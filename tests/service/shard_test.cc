@@ -16,6 +16,7 @@
 #include <sstream>
 
 #include "interest_oracle.h"
+#include "process_test_support.h"
 #include "service_test_support.h"
 #include <fcntl.h>
 #include <signal.h>
@@ -450,72 +451,6 @@ TEST(ShardedPublisher, RoutesEachItemSoThatEveryShardAppliesWhatOneDaemonWould) 
 
 // --- Real processes ------------------------------------------------------------------------
 
-class ScratchDir {
- public:
-  ScratchDir()
-      : path_((std::filesystem::temp_directory_path() / ("bp-shard-" + TestPartition())).string()) {
-    std::filesystem::create_directories(path_);
-  }
-  ~ScratchDir() {
-    std::error_code ignored;
-    std::filesystem::remove_all(path_, ignored);
-  }
-  const std::string& path() const { return path_; }
-
- private:
-  std::string path_;
-};
-
-class Process {
- public:
-  Process(const std::string& binary, const std::vector<std::string>& args,
-          const std::string& log_path) {
-    pid_ = fork();
-    if (pid_ == 0) {
-      const int fd = open(log_path.c_str(), O_WRONLY | O_CREAT | O_APPEND, 0644);
-      dup2(fd, 2);
-      dup2(fd, 1);
-      std::vector<char*> argv{const_cast<char*>(binary.c_str())};
-      for (auto& a : args) argv.push_back(const_cast<char*>(a.c_str()));
-      argv.push_back(nullptr);
-      execv(binary.c_str(), argv.data());
-      _exit(127);
-    }
-  }
-  ~Process() { Kill(); }
-  void Kill() {
-    if (pid_ > 0 && !exited_) {
-      kill(pid_, SIGKILL);
-      int status = 0;
-      waitpid(pid_, &status, 0);
-      exited_ = true;
-    }
-  }
-  int Wait(std::chrono::milliseconds timeout) {
-    const auto deadline = std::chrono::steady_clock::now() + timeout;
-    while (std::chrono::steady_clock::now() < deadline) {
-      int status = 0;
-      if (waitpid(pid_, &status, WNOHANG) == pid_) {
-        exited_ = true;
-        return WIFEXITED(status) ? WEXITSTATUS(status) : -1;
-      }
-      std::this_thread::sleep_for(10ms);
-    }
-    return -1;
-  }
-
- private:
-  pid_t pid_ = -1;
-  bool exited_ = false;
-};
-
-std::string ReadFile(const std::string& path) {
-  std::ifstream in(path);
-  std::stringstream s;
-  s << in.rdbuf();
-  return s.str();
-}
-
 // "local id" of a global key.
 std::string KeyName(uint64_t key) { return std::to_string(key & ((uint64_t{1} << 48) - 1)); }
 
@@ -524,7 +459,7 @@ std::string SelfExe() { return std::filesystem::read_symlink("/proc/self/exe").s
 // Three shard daemons a, b, c and, on demand, the producer process. Each process may run in a
 // network namespace of its own (hosts: "" = this one), with its own Cyclone configuration.
 struct World {
-  ScratchDir dir;
+  ScratchDir dir{"bp-shard-"};
   std::string map_path;
   service::Config base = TestConfig(kDomain);
   // Per host (a, b, c, producer): its network namespace and Cyclone configuration.
@@ -557,9 +492,9 @@ struct World {
   // binary args, in host's namespace if it has one.
   std::unique_ptr<Process> Run(size_t host, const std::string& binary,
                                std::vector<std::string> args, const std::string& log) {
-    if (netns[host].empty()) return std::make_unique<Process>(binary, args, log);
+    if (netns[host].empty()) return std::make_unique<Process>(args, log, binary);
     args.insert(args.begin(), {"netns", "exec", netns[host], binary});
-    return std::make_unique<Process>("/usr/sbin/ip", args, log);
+    return std::make_unique<Process>(args, log, "/usr/sbin/ip");
   }
   std::string Logs() const {
     std::string out;
@@ -893,7 +828,7 @@ TEST(ShardNetwork, FourHostsOverVethPairsAndACutLinkResyncToTheExactSet) {
   TestNetwork net(4);
   if (!net.bridge()) GTEST_SKIP() << "the kernel makes no bridge (ip link add type bridge)";
   ASSERT_TRUE(net.ok()) << "could not create the namespaces and veth pairs";
-  ScratchDir xml_dir;
+  ScratchDir xml_dir("bp-shard-xml-");
   std::array<std::string, 4> hosts, xml_paths;
   for (size_t i = 0; i < 4; ++i) {
     hosts[i] = net.host(i);

@@ -282,12 +282,6 @@ size_t ShardMap::OwnerOf(const uint32_t* index) const {
   return owner_[b];
 }
 
-size_t ShardMap::OwnerOfPoint(const double* p) const {
-  std::array<uint32_t, 3> index{};
-  for (int a = 0; a < dim_; ++a) index[size_t(a)] = BlockOf(a, p[a]);
-  return OwnerOf(index.data());
-}
-
 ShardMap::Mask ShardMap::Route(const double* lo, const double* hi) const {
   std::array<uint32_t, 3> from{}, to{};
   for (int a = 0; a < dim_; ++a) {

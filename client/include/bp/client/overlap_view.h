@@ -39,6 +39,15 @@
 
 namespace bp::client {
 
+/// A hash of a pair of keys, for the sets of pairs the views keep.
+struct PairHash {
+  size_t operator()(const std::pair<uint64_t, uint64_t>& p) const {
+    uint64_t h = p.first * 0x9E3779B97F4A7C15ull ^ (p.second + 0x632BE59BD9B4E019ull);
+    h ^= h >> 29;
+    return static_cast<size_t>(h * 0xBF58476D1CE4E5B9ull);
+  }
+};
+
 class OverlapView {
  public:
   /// Applies one received part. Returns true when the view has just lost its sync (or has
@@ -69,13 +78,6 @@ class OverlapView {
   uint64_t snapshots() const { return snapshots_; }
 
  private:
-  struct PairHash {
-    size_t operator()(const std::pair<uint64_t, uint64_t>& p) const {
-      uint64_t h = p.first * 0x9E3779B97F4A7C15ull ^ (p.second + 0x632BE59BD9B4E019ull);
-      h ^= h >> 29;
-      return static_cast<size_t>(h * 0xBF58476D1CE4E5B9ull);
-    }
-  };
   using PairSet = std::unordered_set<std::pair<uint64_t, uint64_t>, PairHash>;
   static std::pair<uint64_t, uint64_t> Key(uint64_t a, uint64_t b) {
     return a < b ? std::pair{a, b} : std::pair{b, a};

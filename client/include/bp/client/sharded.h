@@ -91,8 +91,6 @@ class ShardedPublisher : public BatchPublisher {
   size_t border_objects() const;
   /// Objects that left a shard for another so far.
   uint64_t handovers() const { return handovers_; }
-  /// Items sent to each shard so far.
-  const std::vector<uint64_t>& items_sent() const { return items_sent_; }
 
  private:
   struct Placed {
@@ -117,7 +115,6 @@ class ShardedPublisher : public BatchPublisher {
   uint64_t last_closed_frame_ = 0;
   bool closed_any_ = false;
   uint64_t handovers_ = 0;
-  std::vector<uint64_t> items_sent_;
 };
 
 /// One merged frame: the world's events between two producer frames.
@@ -150,9 +147,6 @@ class MergedView {
   bool synced() const { return emitted_; }
   uint64_t frame() const { return frame_; }
   bool wants_snapshot(size_t s) const { return !shards_[s].synced; }
-  bool shard_synced(size_t s) const { return shards_[s].synced; }
-  /// The newest frame shard s has delivered (0: none since its last sync).
-  uint64_t shard_frame(size_t s) const;
   /// The shards the next merged frame waits for (empty when one is ready or none is due).
   std::vector<size_t> waiting_for() const;
   size_t size() const { return counts_.size(); }
@@ -167,13 +161,6 @@ class MergedView {
 
  private:
   using Pair = std::pair<uint64_t, uint64_t>;
-  struct PairHash {
-    size_t operator()(const Pair& p) const {
-      uint64_t h = p.first * 0x9E3779B97F4A7C15ull ^ (p.second + 0x632BE59BD9B4E019ull);
-      h ^= h >> 29;
-      return static_cast<size_t>(h * 0xBF58476D1CE4E5B9ull);
-    }
-  };
   using PairSet = std::unordered_set<Pair, PairHash>;
   static Pair Key(uint64_t a, uint64_t b) { return a < b ? Pair{a, b} : Pair{b, a}; }
   // A state change of one shard: a frame's events, or (reset) its whole set.

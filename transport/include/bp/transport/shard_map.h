@@ -47,15 +47,11 @@ class ShardMap {
   const std::string& name(size_t shard) const { return names_[shard]; }
   /// The shard called name, or -1.
   int Find(std::string_view name) const;
-  /// The blocks of the grid on axis a.
-  uint32_t blocks(int axis) const { return count_[static_cast<size_t>(axis)]; }
 
   /// The block index of coordinate x on axis a (clamped to the grid; NaN gives 0).
   uint32_t BlockOf(int axis, double x) const;
   /// The shard owning block (index[0], ..., index[K-1]).
   size_t OwnerOf(const uint32_t* index) const;
-  /// The shard owning the block of point p (K coordinates).
-  size_t OwnerOfPoint(const double* p) const;
   /// The shards a box [lo, hi] (K coordinates each) touches, as a mask (bit s: shard s). A box
   /// with a NaN coordinate or lo > hi touches no shard (0); infinite coordinates clamp to the
   /// grid's edge blocks.
